@@ -1,0 +1,1 @@
+"""OpenMulti mapping: the learner (no PettingZoo, Gymnasium or pyrender here)."""

@@ -1,0 +1,1 @@
+"""Communication policies: scripted and learned (imports neither openmulti_env nor mapping)."""
