@@ -144,7 +144,10 @@ class AgentSequence:
 
     @property
     def poses(self) -> np.ndarray:
-        """(n, 4, 4) camera-to-world poses of all frames."""
+        """(n, 4, 4) camera-to-world poses of all frames (without reading images when the loader can)."""
+        lazy_poses = getattr(self.frames, "poses", None)
+        if lazy_poses is not None:
+            return np.asarray(lazy_poses)
         return np.stack([f.pose for f in self.frames]) if len(self.frames) else np.zeros((0, 4, 4))
 
 

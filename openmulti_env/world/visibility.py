@@ -1,0 +1,162 @@
+"""The observable ground truth: the scene's surface culled to what can be seen from free space.
+
+Published evaluations cull Replica meshes to what cameras can see, so faces under furniture, against
+walls or inside other objects do not count against a reconstruction. We do the same with a dense set
+of virtual cameras over the room's free space at several heights: the mesh is first subdivided into
+small triangles, and a triangle is observable when its front side has an unoccluded line of sight to
+at least one virtual camera. Coverage and every geometric metric use the culled mesh.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import trimesh
+
+from openmulti_env.world.raycast import MeshRaycaster
+from openmulti_env.world.scene import Scene
+
+# Tolerances, each with its reason:
+SURFACE_OFFSET_M = 2e-3  # lift a face's test point off the face so the ray does not hit the face itself
+OCCLUSION_SLACK_M = 1e-3  # a hit this much before the target still counts as reaching it (float32 rays)
+
+
+@dataclass
+class FreeSpaceConfig:
+    """Where the virtual cameras of the culling (and the agents' candidate viewpoints) may stand."""
+
+    spacing_m: float = 0.35
+    """Grid step of the viewpoints on the floor plan."""
+    heights_m: tuple[float, ...] = (0.9, 1.4, 1.9)
+    """Camera heights above the floor (a person's and a robot's eye heights)."""
+    clearance_m: float = 0.25
+    """Minimum distance from walls and from any object's bounding box."""
+
+
+def free_space_viewpoints(scene: Scene, config: FreeSpaceConfig | None = None) -> np.ndarray:
+    """Camera positions over the room's free space.
+
+    Returns
+    -------
+    positions : (n, 3) float
+      Points on a grid over the room at ``config.heights_m``, at least ``clearance_m`` from walls,
+      floor, ceiling and from every object's axis-aligned bounding box.
+    """
+    cfg = config or FreeSpaceConfig()
+    sx, sy, sz = scene.size_m
+    c = cfg.clearance_m
+    xs = _grid_axis(c, sx - c, cfg.spacing_m)
+    ys = _grid_axis(c, sy - c, cfg.spacing_m)
+    zs = np.array([h for h in cfg.heights_m if c <= h <= sz - c])
+    if len(xs) == 0 or len(ys) == 0 or len(zs) == 0:
+        raise ValueError(f"scene {scene.name!r} ({sx:.2f}x{sy:.2f}x{sz:.2f} m) has no free space for cameras")
+    grid = np.stack(np.meshgrid(xs, ys, zs, indexing="ij"), axis=-1).reshape(-1, 3)
+    free = np.ones(len(grid), dtype=bool)
+    for inst in scene.instances:
+        if inst.is_structure:
+            continue
+        lo, hi = inst.bounds[0] - c, inst.bounds[1] + c
+        free &= ~np.all((grid >= lo) & (grid <= hi), axis=1)
+    if not free.any():
+        raise ValueError(f"scene {scene.name!r}: furniture leaves no free space for cameras")
+    return grid[free]
+
+
+def _grid_axis(lo: float, hi: float, step: float) -> np.ndarray:
+    if hi < lo:
+        return np.zeros(0)
+    n = int(np.floor((hi - lo) / step)) + 1
+    return lo + (hi - lo - (n - 1) * step) / 2 + step * np.arange(n)
+
+
+@dataclass
+class ObservableSurface:
+    """The scene mesh subdivided into small faces, with which faces free space can see.
+
+    Attributes:
+        mesh: the subdivided scene mesh (all faces, observable or not).
+        face_instance_ids: (n_faces,) instance id of each face.
+        visible: (n_faces,) True where some viewpoint sees the face's front side.
+        viewpoints: (m, 3) the virtual camera positions used.
+        visibility: (m, n_faces) bool, viewpoint i sees face j (kept for path planning).
+    """
+
+    mesh: trimesh.Trimesh
+    face_instance_ids: np.ndarray
+    visible: np.ndarray
+    viewpoints: np.ndarray
+    visibility: np.ndarray
+
+    def culled_mesh(self) -> trimesh.Trimesh:
+        """Only the observable faces (vertex colours kept); ``culled_face_instance_ids`` labels them."""
+        mesh = self.mesh.submesh([np.flatnonzero(self.visible)], append=True, repair=False)
+        return mesh
+
+    @property
+    def culled_face_instance_ids(self) -> np.ndarray:
+        """(n_visible,) instance id of each face of ``culled_mesh()``."""
+        return self.face_instance_ids[self.visible]
+
+    @property
+    def visible_fraction(self) -> float:
+        """Share of the total surface area that is observable."""
+        area = self.mesh.area_faces
+        return float(area[self.visible].sum() / area.sum())
+
+    def sample_points(self, count: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+        """Area-uniform points on the observable surface and the instance id under each.
+
+        Returns
+        -------
+        points : (count, 3) float
+        instance_ids : (count,) int32
+        """
+        culled = self.culled_mesh()
+        points, face = trimesh.sample.sample_surface(culled, count, seed=seed)
+        return np.asarray(points), self.culled_face_instance_ids[face].astype(np.int32)
+
+
+def subdivide_scene(scene: Scene, max_edge_m: float) -> tuple[trimesh.Trimesh, np.ndarray]:
+    """Scene mesh with every edge at most ``max_edge_m``, and the instance id of each new face."""
+    meshes, labels = [], []
+    for inst in scene.instances:
+        m = inst.mesh
+        colors = np.asarray(m.visual.face_colors)
+        v, f, idx = trimesh.remesh.subdivide_to_size(
+            m.vertices, m.faces, max_edge=max_edge_m, max_iter=12, return_index=True
+        )
+        sub = trimesh.Trimesh(v, f, face_colors=colors[idx], process=False)
+        meshes.append(sub)
+        labels.append(np.full(len(f), inst.instance_id, dtype=np.int32))
+    return trimesh.util.concatenate(meshes), np.concatenate(labels)
+
+
+def compute_observable_surface(
+    scene: Scene,
+    viewpoints: np.ndarray | None = None,
+    max_edge_m: float = 0.05,
+    max_range_m: float = 8.0,
+) -> ObservableSurface:
+    """Cull the scene's surface to what the ``viewpoints`` (default: free-space grid) can see.
+
+    A face is seen from a viewpoint when the viewpoint is on the face's front side, within
+    ``max_range_m``, and the segment to the face's centre hits nothing first.
+    """
+    if viewpoints is None:
+        viewpoints = free_space_viewpoints(scene)
+    mesh, face_ids = subdivide_scene(scene, max_edge_m)
+    caster = MeshRaycaster(scene.mesh())
+    centres = np.asarray(mesh.triangles_center) + SURFACE_OFFSET_M * np.asarray(mesh.face_normals)
+    normals = np.asarray(mesh.face_normals)
+    visibility = np.zeros((len(viewpoints), len(centres)), dtype=bool)
+    for i, eye in enumerate(viewpoints):
+        to_face = centres - eye
+        dist = np.linalg.norm(to_face, axis=1)
+        facing = (np.einsum("ij,ij->i", normals, -to_face) > 0) & (dist < max_range_m)
+        idx = np.flatnonzero(facing)
+        if len(idx) == 0:
+            continue
+        t, _ = caster.cast(eye, to_face[idx] / dist[idx, None])
+        visibility[i, idx] = t >= dist[idx] - OCCLUSION_SLACK_M
+    return ObservableSurface(mesh, face_ids, visibility.any(axis=0), np.asarray(viewpoints), visibility)
