@@ -20,7 +20,7 @@ def boxes_overlap(a: np.ndarray, b: np.ndarray, margin: float = 0.0) -> bool:
 
 
 def _probe_points(part: trimesh.Trimesh, count: int) -> np.ndarray:
-    pts, _ = trimesh.sample.sample_surface_even(part, count, seed=0)
+    pts, _ = trimesh.sample.sample_surface(part, count, seed=0)
     return np.concatenate([np.asarray(part.vertices), np.asarray(pts)])
 
 

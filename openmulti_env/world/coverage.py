@@ -29,9 +29,11 @@ def observed_points(caster: MeshRaycaster, poses: np.ndarray, intrinsics: Intrin
     """
     chunks = []
     for pose in poses:
-        depth, _ = caster.render_depth(pose, intrinsics)
+        depth, _ = caster.render_depth(pose, intrinsics, stride=stride)
         depth[depth > max_depth_m] = 0.0
-        chunks.append(backproject_depth(depth, intrinsics, pose, stride=stride))
+        strided = Intrinsics(depth.shape[1], depth.shape[0], intrinsics.fx / stride, intrinsics.fy / stride,
+                             intrinsics.cx / stride, intrinsics.cy / stride)
+        chunks.append(backproject_depth(depth, strided, pose))
     pts = np.concatenate(chunks) if chunks else np.zeros((0, 3))
     if len(pts) == 0:
         return pts

@@ -2,7 +2,8 @@
 
 pyrender 0.1.45 still uses ``np.infty`` (removed in NumPy 2), which breaks ``Mesh.bounds``,
 ``Scene.centroid`` and directional shadows. We restore the alias before pyrender is imported.
-It also renders one sample per pixel (see ``_disable_multisampling``). PyOpenGL reads ``PYOPENGL_PLATFORM`` at its first import, so the platform must be chosen before that:
+It also renders one sample per pixel (see ``_disable_multisampling``) and lets several EGL
+renderers share the process's display (see ``_keep_egl_display_alive``). PyOpenGL reads ``PYOPENGL_PLATFORM`` at its first import, so the platform must be chosen before that:
 EGL by default (no display needed), OSMesa when asked (``OPENMULTI_GL=osmesa`` or ``platform=``).
 """
 
@@ -43,6 +44,26 @@ def _disable_multisampling(pyrender: ModuleType) -> None:
     renderer.glRenderbufferStorageMultisample = single_sample
 
 
+def _keep_egl_display_alive() -> None:
+    """Let several renderers live in one process.
+
+    All EGL renderers of a process share one display; pyrender's ``delete_context`` terminates it,
+    which breaks every other renderer still alive (EGL_BAD_DISPLAY). We destroy only the context.
+    """
+    from pyrender.platforms import egl  # noqa: PLC0415
+
+    def delete_context(self) -> None:
+        from OpenGL.EGL import eglDestroyContext, eglMakeCurrent, EGL_NO_CONTEXT, EGL_NO_SURFACE  # noqa: PLC0415
+
+        if self._egl_display is not None and self._egl_context is not None:
+            eglMakeCurrent(self._egl_display, EGL_NO_SURFACE, EGL_NO_SURFACE, EGL_NO_CONTEXT)
+            eglDestroyContext(self._egl_display, self._egl_context)
+            self._egl_context = None
+        self._egl_display = None
+
+    egl.EGLPlatform.delete_context = delete_context
+
+
 def load_pyrender(platform: str | None = None) -> ModuleType:
     """Import pyrender headless on ``platform`` ("egl" or "osmesa"; default from OPENMULTI_GL or egl).
 
@@ -66,5 +87,7 @@ def load_pyrender(platform: str | None = None) -> ModuleType:
     import pyrender  # noqa: PLC0415  (must follow the platform choice and the patch)
 
     _disable_multisampling(pyrender)
+    if wanted == "egl":
+        _keep_egl_display_alive()
     _pyrender = pyrender
     return pyrender

@@ -22,7 +22,8 @@ from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation, Slerp
 
 from mapping.data import Intrinsics
-from openmulti_env.world.visibility import ObservableSurface
+from openmulti_env.world.raycast import MeshRaycaster
+from openmulti_env.world.visibility import ObservableSurface, visibility_matrix
 
 
 @dataclass
@@ -43,6 +44,11 @@ class PathConfig:
     """Upper bound on key views per agent."""
     image_margin: float = 0.08
     """Share of the image border not counted when choosing key views (the edge is seen at a slant)."""
+    foreign_penalty: float = 1.0
+    """Cost of seeing another region's surface, per unit of own new surface: keeps agents looking at
+    their own part of the room, which leaves each agent blind zones that only the team covers."""
+    planning_points: int = 6000
+    """Surface samples the planner reasons about."""
 
 
 def look_rotation(yaw_deg: float, pitch_deg: float) -> np.ndarray:
@@ -84,86 +90,93 @@ def split_regions(viewpoints: np.ndarray, n_regions: int, seed: int) -> np.ndarr
     return relabel[labels]
 
 
-def face_owners(surface: ObservableSurface, regions: np.ndarray) -> np.ndarray:
-    """Region of each visible face: the region of the nearest viewpoint that sees it."""
-    centres = np.asarray(surface.mesh.triangles_center)[surface.visible]
-    vis = surface.visibility[:, surface.visible]
-    best = np.full(len(centres), np.inf)
-    owner = np.zeros(len(centres), dtype=int)
-    for i, eye in enumerate(surface.viewpoints):
-        d = np.linalg.norm(centres - eye, axis=1)
+def point_owners(points: np.ndarray, viewpoints: np.ndarray, vis: np.ndarray, regions: np.ndarray) -> np.ndarray:
+    """Region of each surface point: the region of the nearest viewpoint that sees it."""
+    best = np.full(len(points), np.inf)
+    owner = np.zeros(len(points), dtype=int)
+    for i, eye in enumerate(viewpoints):
+        d = np.linalg.norm(points - eye, axis=1)
         better = vis[i] & (d < best)
         best[better] = d[better]
         owner[better] = regions[i]
     return owner
 
 
-def _frustum_mask(points: np.ndarray, eye: np.ndarray, rotation: np.ndarray, k: Intrinsics, margin: float,
-                  max_dist: float) -> np.ndarray:
-    cam = (points - eye) @ rotation
-    z = cam[:, 2]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        u = k.fx * cam[:, 0] / z + k.cx
-        v = k.fy * cam[:, 1] / z + k.cy
-    mu, mv = margin * k.width, margin * k.height
-    return (z > 0.1) & (u >= mu) & (u < k.width - mu) & (v >= mv) & (v < k.height - mv) & (
-        np.linalg.norm(points - eye, axis=1) < max_dist)
-
-
-def choose_key_views(surface: ObservableSurface, region_viewpoints: np.ndarray, owned: np.ndarray,
-                     intrinsics: Intrinsics, cfg: PathConfig) -> list[tuple[int, float, float]]:
-    """Greedy weighted set cover of the region's faces by (viewpoint, yaw, pitch) key views.
+def choose_key_views(points: np.ndarray, vis: np.ndarray, viewpoints: np.ndarray, region_viewpoints: np.ndarray,
+                     owned: np.ndarray, intrinsics: Intrinsics, cfg: PathConfig) -> list[tuple[int, float, float]]:
+    """Greedy set cover of the region's own surface points by (viewpoint, yaw, pitch) key views, each
+    view paying ``foreign_penalty`` for the other regions' surface it sees.
 
     Args:
+        points: (n, 3) surface samples; vis: (m, n) viewpoint-sees-point.
         region_viewpoints: indices of the viewpoints of this region.
-        owned: (n_visible,) bool, faces of this region.
+        owned: (n,) bool, points of this region.
 
     Returns:
         key views as (viewpoint index, yaw_deg, pitch_deg), in the order chosen.
     """
-    centres = np.asarray(surface.mesh.triangles_center)[surface.visible][owned]
-    area = np.asarray(surface.mesh.area_faces)[surface.visible][owned]
-    vis = surface.visibility[:, surface.visible][:, owned]
     yaws = np.arange(cfg.yaw_steps) * 360.0 / cfg.yaw_steps
-    cands, masks = [], []
+    dirs = [(float(y), float(p)) for y in yaws for p in cfg.pitches_deg]
+    rots = np.stack([look_rotation(y, p) for y, p in dirs])  # (d, 3, 3)
+    k = intrinsics
+    cands, seen_rows, inner_rows = [], [], []
     for vp in region_viewpoints:
-        seen = vis[vp]
-        if not seen.any():
+        seen = vis[vp] & (np.linalg.norm(points - viewpoints[vp], axis=1) < cfg.max_view_distance_m)
+        if not (seen & owned).any():
             continue
-        for yaw in yaws:
-            for pitch in cfg.pitches_deg:
-                m = seen & _frustum_mask(centres, surface.viewpoints[vp], look_rotation(yaw, pitch), intrinsics,
-                                         cfg.image_margin, cfg.max_view_distance_m)
-                if m.any():
-                    cands.append((int(vp), float(yaw), float(pitch)))
-                    masks.append(m)
+        idx = np.flatnonzero(seen)
+        cam = (points[idx] - viewpoints[vp]) @ rots  # (d, n_seen, 3): camera coordinates per direction
+        z = np.maximum(cam[..., 2], 1e-9)
+        u, v = k.fx * cam[..., 0] / z + k.cx, k.fy * cam[..., 1] / z + k.cy
+        front = cam[..., 2] > 0.1
+        mu, mv = cfg.image_margin * k.width, cfg.image_margin * k.height
+        in_image = front & (u >= 0) & (u < k.width) & (v >= 0) & (v < k.height)
+        in_inner = front & (u >= mu) & (u < k.width - mu) & (v >= mv) & (v < k.height - mv)
+        for d, (yaw, pitch) in enumerate(dirs):
+            if not (in_inner[d] & owned[idx]).any():
+                continue
+            row_seen = np.zeros(len(points), dtype=bool)
+            row_seen[idx[in_image[d]]] = True
+            row_inner = np.zeros(len(points), dtype=bool)
+            row_inner[idx[in_inner[d]]] = True
+            cands.append((int(vp), yaw, pitch))
+            seen_rows.append(row_seen)
+            inner_rows.append(row_inner)
     if not cands:
         return []
-    cover = np.stack(masks)  # (n_candidates, n_faces)
-    reachable = cover.any(axis=0)
-    goal = cfg.target_region_coverage * area[reachable].sum()
-    covered = np.zeros(len(area), dtype=bool)
+    own_cover = (np.stack(inner_rows) & owned).astype(np.float32)  # (n_candidates, n_points)
+    foreign_seen = (np.stack(seen_rows) & ~owned).astype(np.float32)
+    goal = cfg.target_region_coverage * own_cover.any(axis=0).sum()
+    covered = np.zeros(len(points), dtype=bool)
+    exposed = np.zeros(len(points), dtype=bool)
     chosen: list[tuple[int, float, float]] = []
-    while len(chosen) < cfg.max_key_views and area[covered].sum() < goal:
-        gain = cover.astype(np.float32) @ np.where(covered, 0.0, area).astype(np.float32)
-        best = int(np.argmax(gain))
-        if gain[best] <= 0:
+    # at least three frames per key view, so the camera moves between them rather than jumping
+    max_keys = max(1, min(cfg.max_key_views, cfg.frames_per_agent // 3))
+    while len(chosen) < max_keys and covered.sum() < goal:
+        new_own = own_cover @ (~covered).astype(np.float32)
+        new_foreign = foreign_seen @ (~exposed).astype(np.float32)
+        score = np.where(new_own > 0, new_own - cfg.foreign_penalty * new_foreign, -np.inf)
+        best = int(np.argmax(score))
+        if new_own[best] <= 0:
             break
         chosen.append(cands[best])
-        covered |= cover[best]
+        covered |= own_cover[best] > 0
+        exposed |= foreign_seen[best] > 0
     return chosen
 
 
 def _order_tour(positions: np.ndarray, rotations: list[np.ndarray], start: int = 0) -> list[int]:
     """Nearest-neighbour tour over key views; cost = distance + 0.5 m per radian of turning."""
     n = len(positions)
-    order, left = [start], set(range(n)) - {start}
-    while left:
-        cur = order[-1]
-        best = min(left, key=lambda j: np.linalg.norm(positions[j] - positions[cur])
-                   + 0.5 * (Rotation.from_matrix(rotations[cur]).inv() * Rotation.from_matrix(rotations[j])).magnitude())
-        order.append(best)
-        left.remove(best)
+    forward = np.stack([r[:, 2] for r in rotations])
+    cost = np.linalg.norm(positions[:, None] - positions[None], axis=2) + 0.5 * np.arccos(
+        np.clip(forward @ forward.T, -1.0, 1.0))
+    order, left = [start], np.ones(n, dtype=bool)
+    left[start] = False
+    while left.any():
+        nxt = int(np.argmin(np.where(left, cost[order[-1]], np.inf)))
+        order.append(nxt)
+        left[nxt] = False
     return order
 
 
@@ -228,7 +241,7 @@ def _pose(rotation: np.ndarray, position) -> np.ndarray:
     return pose
 
 
-def plan_agent_paths(surface: ObservableSurface, n_paths: int, intrinsics: Intrinsics,
+def plan_agent_paths(surface: ObservableSurface, caster: MeshRaycaster, n_paths: int, intrinsics: Intrinsics,
                      config: PathConfig | None = None, seed: int = 0, spacing_m: float = 0.35) -> list[np.ndarray]:
     """One smooth path per region; see the module docstring.
 
@@ -239,14 +252,16 @@ def plan_agent_paths(surface: ObservableSurface, n_paths: int, intrinsics: Intri
     if not 1 <= n_paths <= 8:
         raise ValueError(f"number of agents must be between 1 and 8, got {n_paths}")
     vps = surface.viewpoints
+    points, normals, _ = surface.sample_points(cfg.planning_points, seed=seed)
+    vis = visibility_matrix(caster, vps, points, normals)
     regions = split_regions(vps, n_paths, seed)
-    owners = face_owners(surface, regions)
+    owners = point_owners(points, vps, vis, regions)
     graph = viewpoint_graph(vps, spacing_m)
     paths = []
     for r in range(n_paths):
         region_vps = np.flatnonzero(regions == r)
-        keys = choose_key_views(surface, region_vps, owners == r, intrinsics, cfg)
-        if not keys:  # a region that sees nothing of its own: look around from its centre
+        keys = choose_key_views(points, vis, vps, region_vps, owners == r, intrinsics, cfg)
+        if not keys:  # a region that sees nothing of its own: look around from its first viewpoint
             keys = [(int(region_vps[0]), 0.0, 0.0)]
         positions = np.stack([vps[k[0]] for k in keys])
         rotations = [look_rotation(k[1], k[2]) for k in keys]

@@ -47,18 +47,19 @@ class MeshRaycaster:
         face[~np.isfinite(t)] = -1
         return t, face
 
-    def render_depth(self, pose: np.ndarray, intrinsics: Intrinsics) -> tuple[np.ndarray, np.ndarray]:
+    def render_depth(self, pose: np.ndarray, intrinsics: Intrinsics, stride: int = 1) -> tuple[np.ndarray, np.ndarray]:
         """Depth image (metres along the optical axis, 0 = no hit) and per-pixel label (0 = none).
 
         ``pose`` is camera-to-world with OpenCV axes; pixel (u, v) looks through image point (u, v).
+        With ``stride`` > 1 only every stride-th pixel is cast: the result is the image ``[::stride, ::stride]``.
         """
         k = intrinsics
-        v, u = np.mgrid[0 : k.height, 0 : k.width]
+        v, u = np.mgrid[0 : k.height : stride, 0 : k.width : stride]
         cam = np.stack([(u - k.cx) / k.fx, (v - k.cy) / k.fy, np.ones(u.shape)], axis=-1).reshape(-1, 3)
         t, face = self.cast(np.asarray(pose[:3, 3]), cam @ pose[:3, :3].T)
-        depth = np.where(np.isfinite(t), t, 0.0).astype(np.float32).reshape(k.height, k.width)
+        depth = np.where(np.isfinite(t), t, 0.0).astype(np.float32).reshape(u.shape)
         if self.face_labels is None:
             labels = (face >= 0).astype(np.int32)
         else:
             labels = np.where(face >= 0, self.face_labels[np.maximum(face, 0)], 0).astype(np.int32)
-        return depth, labels.reshape(k.height, k.width)
+        return depth, labels.reshape(u.shape)

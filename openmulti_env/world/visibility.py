@@ -26,7 +26,7 @@ OCCLUSION_SLACK_M = 1e-3  # a hit this much before the target still counts as re
 class FreeSpaceConfig:
     """Where the virtual cameras of the culling (and the agents' candidate viewpoints) may stand."""
 
-    spacing_m: float = 0.35
+    spacing_m: float = 0.5
     """Grid step of the viewpoints on the floor plan."""
     heights_m: tuple[float, ...] = (0.9, 1.4, 1.9)
     """Camera heights above the floor (a person's and a robot's eye heights)."""
@@ -79,19 +79,16 @@ class ObservableSurface:
         face_instance_ids: (n_faces,) instance id of each face.
         visible: (n_faces,) True where some viewpoint sees the face's front side.
         viewpoints: (m, 3) the virtual camera positions used.
-        visibility: (m, n_faces) bool, viewpoint i sees face j (kept for path planning).
     """
 
     mesh: trimesh.Trimesh
     face_instance_ids: np.ndarray
     visible: np.ndarray
     viewpoints: np.ndarray
-    visibility: np.ndarray
 
     def culled_mesh(self) -> trimesh.Trimesh:
-        """Only the observable faces (vertex colours kept); ``culled_face_instance_ids`` labels them."""
-        mesh = self.mesh.submesh([np.flatnonzero(self.visible)], append=True, repair=False)
-        return mesh
+        """Only the observable faces (face colours kept); ``culled_face_instance_ids`` labels them."""
+        return self.mesh.submesh([np.flatnonzero(self.visible)], append=True, repair=False)
 
     @property
     def culled_face_instance_ids(self) -> np.ndarray:
@@ -104,27 +101,38 @@ class ObservableSurface:
         area = self.mesh.area_faces
         return float(area[self.visible].sum() / area.sum())
 
-    def sample_points(self, count: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
-        """Area-uniform points on the observable surface and the instance id under each.
+    def sample_points(self, count: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Area-uniform points on the observable surface.
 
         Returns
         -------
         points : (count, 3) float
+        normals : (count, 3) float
         instance_ids : (count,) int32
         """
         culled = self.culled_mesh()
         points, face = trimesh.sample.sample_surface(culled, count, seed=seed)
-        return np.asarray(points), self.culled_face_instance_ids[face].astype(np.int32)
+        normals = np.asarray(culled.face_normals)[face]
+        return np.asarray(points), normals, self.culled_face_instance_ids[face].astype(np.int32)
 
 
 def subdivide_scene(scene: Scene, max_edge_m: float) -> tuple[trimesh.Trimesh, np.ndarray]:
-    """Scene mesh with every edge at most ``max_edge_m``, and the instance id of each new face."""
+    """Scene mesh with every edge at most ``max_edge_m``, and the instance id of each new face.
+
+    The outer sides of walls, floor and ceiling (outside the room box) can never be seen from inside;
+    they are dropped before subdividing, which would otherwise spend most faces on them.
+    """
     meshes, labels = [], []
+    room_lo, room_hi = np.zeros(3) - 1e-3, np.asarray(scene.size_m) + 1e-3
     for inst in scene.instances:
         m = inst.mesh
-        colors = np.asarray(m.visual.face_colors)
+        keep = np.arange(len(m.faces))
+        if inst.is_structure:
+            c = np.asarray(m.triangles_center)
+            keep = np.flatnonzero(np.all((c >= room_lo) & (c <= room_hi), axis=1))
+        colors = np.asarray(m.visual.face_colors)[keep]
         v, f, idx = trimesh.remesh.subdivide_to_size(
-            m.vertices, m.faces, max_edge=max_edge_m, max_iter=12, return_index=True
+            m.vertices, m.faces[keep], max_edge=max_edge_m, max_iter=12, return_index=True
         )
         sub = trimesh.Trimesh(v, f, face_colors=colors[idx], process=False)
         meshes.append(sub)
@@ -132,31 +140,60 @@ def subdivide_scene(scene: Scene, max_edge_m: float) -> tuple[trimesh.Trimesh, n
     return trimesh.util.concatenate(meshes), np.concatenate(labels)
 
 
+def visibility_matrix(caster: MeshRaycaster, viewpoints: np.ndarray, points: np.ndarray, normals: np.ndarray,
+                      max_range_m: float = 8.0, stop_when_seen: bool = False) -> np.ndarray:
+    """Which viewpoints see which surface points.
+
+    A point is seen from a viewpoint when the viewpoint is on the point's front side (``normals``),
+    within ``max_range_m``, and the segment between them hits nothing first.
+
+    Parameters
+    ----------
+    viewpoints : (m, 3) float
+    points, normals : (n, 3) float
+    stop_when_seen : bool
+      Skip points already seen by an earlier viewpoint (enough for culling, much faster); the
+      matrix then holds only the first viewpoint that saw each point.
+
+    Returns
+    -------
+    visible : (m, n) bool
+    """
+    lifted = points + SURFACE_OFFSET_M * normals
+    out = np.zeros((len(viewpoints), len(points)), dtype=bool)
+    seen = np.zeros(len(points), dtype=bool)
+    todo = np.arange(len(points))
+    for i, eye in enumerate(viewpoints):
+        if stop_when_seen:
+            todo = todo[~seen[todo]]
+        to_pt = lifted[todo] - eye
+        dist = np.linalg.norm(to_pt, axis=1)
+        candidate = ((normals[todo] * to_pt).sum(axis=1) < 0) & (dist < max_range_m) & (dist > 1e-6)
+        idx = np.flatnonzero(candidate)
+        if len(idx) == 0:
+            continue
+        t, _ = caster.cast(eye, to_pt[idx] / dist[idx, None])
+        hit = todo[idx[t >= dist[idx] - OCCLUSION_SLACK_M]]
+        out[i, hit] = True
+        seen[hit] = True
+    return out
+
+
 def compute_observable_surface(
     scene: Scene,
     viewpoints: np.ndarray | None = None,
     max_edge_m: float = 0.05,
     max_range_m: float = 8.0,
+    caster: MeshRaycaster | None = None,
 ) -> ObservableSurface:
-    """Cull the scene's surface to what the ``viewpoints`` (default: free-space grid) can see.
-
-    A face is seen from a viewpoint when the viewpoint is on the face's front side, within
-    ``max_range_m``, and the segment to the face's centre hits nothing first.
-    """
+    """Cull the scene's surface to what the ``viewpoints`` (default: free-space grid) can see: a face
+    is observable when its (lifted) centre is seen from at least one viewpoint."""
     if viewpoints is None:
         viewpoints = free_space_viewpoints(scene)
     mesh, face_ids = subdivide_scene(scene, max_edge_m)
-    caster = MeshRaycaster(scene.mesh())
-    centres = np.asarray(mesh.triangles_center) + SURFACE_OFFSET_M * np.asarray(mesh.face_normals)
-    normals = np.asarray(mesh.face_normals)
-    visibility = np.zeros((len(viewpoints), len(centres)), dtype=bool)
-    for i, eye in enumerate(viewpoints):
-        to_face = centres - eye
-        dist = np.linalg.norm(to_face, axis=1)
-        facing = (np.einsum("ij,ij->i", normals, -to_face) > 0) & (dist < max_range_m)
-        idx = np.flatnonzero(facing)
-        if len(idx) == 0:
-            continue
-        t, _ = caster.cast(eye, to_face[idx] / dist[idx, None])
-        visibility[i, idx] = t >= dist[idx] - OCCLUSION_SLACK_M
-    return ObservableSurface(mesh, face_ids, visibility.any(axis=0), np.asarray(viewpoints), visibility)
+    caster = caster or MeshRaycaster(scene.mesh())
+    # a spread-out order sees most faces within the first few viewpoints, so early stopping pays
+    order = np.random.default_rng(0).permutation(len(viewpoints))
+    vis = visibility_matrix(caster, np.asarray(viewpoints)[order], np.asarray(mesh.triangles_center),
+                            np.asarray(mesh.face_normals), max_range_m, stop_when_seen=True)
+    return ObservableSurface(mesh, face_ids, vis.any(axis=0), np.asarray(viewpoints))

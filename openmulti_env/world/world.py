@@ -58,14 +58,15 @@ class World:
             raise ValueError(f"num_agents must be between 1 and {MAX_AGENTS}, got {cfg.num_agents}")
         sc = scene if isinstance(scene, Scene) else make_scene(scene, seed)
         viewpoints = free_space_viewpoints(sc, cfg.free_space)
-        surface = compute_observable_surface(sc, viewpoints, max_edge_m=cfg.culling_edge_m)
+        caster = MeshRaycaster(sc.mesh(), sc.face_instance_ids())
+        surface = compute_observable_surface(sc, viewpoints, max_edge_m=cfg.culling_edge_m, caster=caster)
         intrinsics = cfg.sensor.intrinsics()
         n_regions = SINGLE_AGENT_REGIONS if cfg.num_agents == 1 else cfg.num_agents
-        paths = plan_agent_paths(surface, n_regions, intrinsics, cfg.path, seed=seed,
+        paths = plan_agent_paths(surface, caster, n_regions, intrinsics, cfg.path, seed=seed,
                                  spacing_m=cfg.free_space.spacing_m)
         if cfg.num_agents == 1:
             paths = [np.concatenate(paths)]
-        return World(sc, surface, paths, intrinsics, cfg, seed)
+        return World(sc, surface, paths, intrinsics, cfg, seed, _caster=caster)
 
     @property
     def num_agents(self) -> int:
@@ -100,7 +101,7 @@ class World:
 
     def coverage(self, n_points: int = 30000, stride: int = 2) -> CoverageReport:
         """Coverage of the observable surface by each agent and by the team."""
-        gt, _ = self.surface.sample_points(n_points, seed=self.seed)
+        gt, _, _ = self.surface.sample_points(n_points, seed=self.seed)
         return coverage_report(self.caster, gt, self.agent_poses, self.intrinsics, stride)
 
     def close(self) -> None:

@@ -1,0 +1,193 @@
+"""The ``openmulti`` command line: ``scenes`` and ``run`` (world part) today; ``query``, ``reproduce``
+and ``train`` arrive with the mapper, the perception front end and the env."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from openmulti_env.presets import RUN_PRESETS, world_config
+from openmulti_env.world import World, list_presets, make_scene
+from openmulti_env.world.presets import PRESETS
+from openmulti_env.world.world import MAX_AGENTS
+
+SCRIPTED_POLICIES = ("always", "never", "round_robin", "budget")
+PENDING = {
+    "query": "open-vocabulary retrieval arrives with the perception issue (#4)",
+    "reproduce": "the paper's tables need the mapper (#3) and the multi-agent optimisation",
+    "train": "training communication schedules needs the PettingZoo env",
+}
+
+
+def write_json_atomic(path: Path, data: dict) -> None:
+    """Write JSON through a temporary file and a rename, so a crash never leaves half a file."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(json.dumps(data, indent=2))
+    os.replace(tmp, path)
+
+
+def check_policy(name: str) -> str:
+    """Validate a policy name: always, never, round_robin, budget, bernoulli:P, or a file path."""
+    if name in SCRIPTED_POLICIES:
+        return name
+    if name.startswith("bernoulli:"):
+        try:
+            p = float(name.split(":", 1)[1])
+        except ValueError:
+            p = -1.0
+        if not 0.0 <= p <= 1.0:
+            raise ValueError(f"policy {name!r}: bernoulli:P needs a success probability P in [0, 1]")
+        return name
+    if Path(name).is_file():
+        return name
+    raise ValueError(f"unknown policy {name!r}: use {', '.join(SCRIPTED_POLICIES)}, bernoulli:P or a trained policy file")
+
+
+def _agents(value: str) -> int:
+    n = int(value)
+    if not 1 <= n <= MAX_AGENTS:
+        raise argparse.ArgumentTypeError(f"--agents must be between 1 and {MAX_AGENTS}, got {n}")
+    return n
+
+
+def cmd_scenes(args: argparse.Namespace) -> int:
+    """List presets, or describe one scene with its coverage (and optionally render pictures)."""
+    if args.scene is None:
+        for name in list_presets():
+            print(f"{name:<9} {PRESETS[name]}")
+        print("also: random:SEED, or a path to a .json/.yaml manifest of your own meshes")
+        return 0
+    world = World.build(args.scene, seed=args.seed, config=world_config(args.preset, args.agents))
+    report = world.coverage()
+    info = {**world.scene.describe(), "agents": args.agents,
+            "frames_per_agent": [len(p) for p in world.agent_poses],
+            "observable_area_share": round(world.surface.visible_fraction, 4), "coverage": report.as_dict()}
+    if args.render:
+        from openmulti_env.world.plots import save_frames, save_world_overview  # noqa: PLC0415
+
+        out = Path(args.render)
+        gt, _, _ = world.surface.sample_points(20000, seed=args.seed)
+        save_world_overview(out / "top_down.png", world.scene, world.agent_poses, gt, world.caster, world.intrinsics)
+        for a, poses in enumerate(world.agent_poses):
+            idx = np.linspace(0, len(poses) - 1, 3).astype(int)
+            save_frames(out / f"frames_agent_{a}.png", [world.render(a, int(i)) for i in idx], f"agent_{a}")
+        info["render_dir"] = str(out)
+    if args.json:
+        print(json.dumps(info, indent=2))
+    else:
+        print(f"{world.scene.name}: {len(world.scene.instances)} instances, room {info['size_m']} m")
+        for inst in info["instances"]:
+            print(f"  {inst['id']:>3}  {inst['category']:<13} {inst['caption']}")
+        cov = info["coverage"]
+        print(f"coverage per agent {cov['per_agent_pct']} %, union {cov['union_pct']} %")
+    world.close()
+    return 0
+
+
+def cmd_run(args: argparse.Namespace) -> int:
+    """The main job. Today: world, rendering of every frame, coverage, meshes and pictures."""
+    policy = check_policy(args.policy)
+    out = Path(args.out)
+    start = time.perf_counter()
+    print(f"[openmulti] scene {args.scene}, {args.agents} agents, preset {args.preset}, seed {args.seed}, policy {policy}")
+    t0 = time.perf_counter()
+    world = World.build(args.scene, seed=args.seed, config=world_config(args.preset, args.agents))
+    print(f"[openmulti] world built in {time.perf_counter() - t0:.1f} s: {len(world.scene.instances)} instances, "
+          f"{world.surface.visible_fraction:.0%} of the surface observable")
+    samples = {}
+    total = sum(len(p) for p in world.agent_poses)
+    with tqdm(total=total, desc="rendering frames", unit="frame") as bar:
+        for a, poses in enumerate(world.agent_poses):
+            keep = set(np.linspace(0, len(poses) - 1, 3).astype(int).tolist())
+            for i in range(len(poses)):
+                frame = world.render(a, i)
+                if i in keep:
+                    samples.setdefault(a, []).append(frame)
+                bar.update(1)
+    report = world.coverage()
+
+    from openmulti_env.world.plots import save_frames, save_world_overview  # noqa: PLC0415
+
+    (out / "meshes").mkdir(parents=True, exist_ok=True)
+    world.scene.mesh().export(out / "meshes" / "gt_scene.ply")
+    world.surface.culled_mesh().export(out / "meshes" / "gt_observable.ply")
+    gt, _, _ = world.surface.sample_points(20000, seed=args.seed)
+    save_world_overview(out / "plots" / "top_down.png", world.scene, world.agent_poses, gt, world.caster,
+                        world.intrinsics)
+    for a, frames in samples.items():
+        save_frames(out / "plots" / f"frames_agent_{a}.png", frames, f"{world.scene.name} agent_{a}")
+    cov = report.as_dict()
+    write_json_atomic(out / "world.json", {
+        "scene": world.scene.describe(), "agents": args.agents, "preset": args.preset, "seed": args.seed,
+        "policy": policy, "frames_rendered": total, "coverage": cov, "wall_s": time.perf_counter() - start,
+        "stages_run": ["scene", "culling", "paths", "rendering", "coverage"],
+    })
+    print()
+    print(f"{'agent':<10} {'frames':>6} {'coverage %':>10}")
+    for a, poses in enumerate(world.agent_poses):
+        print(f"agent_{a:<4} {len(poses):>6} {cov['per_agent_pct'][a]:>10.1f}")
+    print(f"{'team':<10} {total:>6} {cov['union_pct']:>10.1f}")
+    print()
+    print("Ran: scene, observable ground truth, agent paths, RGB-D + instance rendering, coverage.")
+    print("Not run: mapping and its metrics (acc/comp/comp-ratio, F-mIoU) - the mapper is not built yet,"
+          " so no metrics.json was written.")
+    print(f"Wrote {out}/world.json, {out}/meshes/, {out}/plots/ in {time.perf_counter() - start:.1f} s")
+    world.close()
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """Argument parser of the ``openmulti`` command."""
+    parser = argparse.ArgumentParser(prog="openmulti", description="OpenMulti multi-agent implicit mapping")
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    p = sub.add_parser("scenes", help="list presets, or describe one scene and its coverage")
+    p.add_argument("scene", nargs="?", help="preset name, random:SEED or manifest path")
+    p.add_argument("--agents", type=_agents, default=4)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--preset", choices=RUN_PRESETS, default="fast")
+    p.add_argument("--json", action="store_true", help="print JSON")
+    p.add_argument("--render", metavar="DIR", help="write a top-down picture and a few frames per agent")
+    p.set_defaults(func=cmd_scenes)
+
+    p = sub.add_parser("run", help="a multi-agent run on one scene")
+    p.add_argument("--scene", default="room0")
+    p.add_argument("--agents", type=_agents, default=4)
+    p.add_argument("--policy", default="always")
+    p.add_argument("--preset", choices=RUN_PRESETS, default="fast")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--out", default="runs/demo")
+    p.set_defaults(func=cmd_run)
+
+    for name, why in PENDING.items():
+        p = sub.add_parser(name, help=f"(not available yet: {why})")
+        p.add_argument("rest", nargs=argparse.REMAINDER)
+        p.set_defaults(func=lambda a, why=why, name=name: _pending(name, why))
+    return parser
+
+
+def _pending(name: str, why: str) -> int:
+    print(f"openmulti {name}: not available yet: {why}.", file=sys.stderr)
+    return 2
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of the console script."""
+    args = build_parser().parse_args(argv)
+    try:
+        return int(args.func(args))
+    except (ValueError, FileNotFoundError, KeyError) as exc:
+        print(f"openmulti {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

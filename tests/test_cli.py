@@ -1,0 +1,44 @@
+import json
+
+from openmulti_env.cli import main
+
+
+def test_scenes_lists_presets(capsys):
+    assert main(["scenes"]) == 0
+    out = capsys.readouterr().out
+    for name in ("room0", "room1", "room2", "office0", "office1", "office2"):
+        assert name in out
+
+
+def test_scenes_json_describes_instances_and_coverage(capsys, tmp_path):
+    assert main(["scenes", "tiny", "--agents", "2", "--preset", "tiny", "--json", "--render", str(tmp_path)]) == 0
+    info = json.loads(capsys.readouterr().out)
+    assert info["name"] == "tiny" and info["agents"] == 2
+    assert {"id", "category", "caption"} <= set(info["instances"][0])
+    cov = info["coverage"]
+    assert len(cov["per_agent_pct"]) == 2 and 0 < cov["union_pct"] <= 100
+    assert (tmp_path / "top_down.png").stat().st_size > 10_000
+    assert (tmp_path / "frames_agent_1.png").exists()
+
+
+def test_run_writes_world_results_and_says_what_it_ran(capsys, tmp_path):
+    out = tmp_path / "run"
+    assert main(["run", "--scene", "tiny", "--agents", "2", "--preset", "tiny", "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "Not run: mapping" in text and "team" in text
+    world = json.loads((out / "world.json").read_text())
+    assert world["frames_rendered"] == 48 and "coverage" in world
+    assert (out / "meshes" / "gt_observable.ply").stat().st_size > 0
+    assert (out / "plots" / "top_down.png").exists()
+    assert not (out / "metrics.json").exists()  # no mapper yet: no pretend metrics
+
+
+def test_bad_input_gives_clear_errors(capsys):
+    assert main(["run", "--scene", "kitchen9", "--preset", "tiny"]) == 2
+    assert "unknown scene 'kitchen9'" in capsys.readouterr().err
+    assert main(["run", "--scene", "tiny", "--policy", "sometimes"]) == 2
+    assert "unknown policy" in capsys.readouterr().err
+    assert main(["run", "--scene", "tiny", "--policy", "bernoulli:1.5"]) == 2
+    assert "[0, 1]" in capsys.readouterr().err
+    assert main(["query", "x"]) == 2
+    assert "not available yet" in capsys.readouterr().err
