@@ -18,6 +18,7 @@ from dataclasses import dataclass
 import networkx as nx
 import numpy as np
 from scipy.cluster.vq import kmeans2
+from scipy.ndimage import gaussian_filter1d
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation, Slerp
 
@@ -47,6 +48,8 @@ class PathConfig:
     foreign_penalty: float = 1.0
     """Cost of seeing another region's surface, per unit of own new surface: keeps agents looking at
     their own part of the room, which leaves each agent blind zones that only the team covers."""
+    smoothing_frames: float = 1.5
+    """Gaussian smoothing of positions along the path, in frames (rounds the grid's corners)."""
     planning_points: int = 6000
     """Surface samples the planner reasons about."""
 
@@ -271,5 +274,8 @@ def plan_agent_paths(surface: ObservableSurface, caster: MeshRaycaster, n_paths:
         segments = [_segment_waypoints(graph, vps, keys[i][0], keys[i + 1][0]) for i in range(len(keys) - 1)]
         if not segments:
             segments = [vps[[keys[0][0]]]]
-        paths.append(interpolate_path(segments, rotations, cfg.frames_per_agent))
+        poses = interpolate_path(segments, rotations, cfg.frames_per_agent)
+        # round the grid path's corners (a few centimetres; the viewpoints keep clearance_m from obstacles)
+        poses[:, :3, 3] = gaussian_filter1d(poses[:, :3, 3], sigma=cfg.smoothing_frames, axis=0, mode="nearest")
+        paths.append(poses)
     return paths

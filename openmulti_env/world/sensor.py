@@ -68,11 +68,16 @@ class RGBDSensor:
         self._rng = np.random.default_rng(seed)
         pyrender = load_pyrender(self.config.platform)
         self._pyrender = pyrender
-        self._scene = pyrender.Scene(bg_color=[0.0, 0.0, 0.0, 1.0], ambient_light=[0.45, 0.45, 0.45])
+        # Two GL scenes: the colour pass draws the whole room as one mesh (one draw call: pyrender's
+        # per-mesh uniform updates are the cost otherwise); the segmentation pass needs a node per
+        # instance so that seg_node_map can give each its own colour code.
+        self._color_scene = pyrender.Scene(bg_color=[0.0, 0.0, 0.0, 1.0], ambient_light=[0.45, 0.45, 0.45])
+        self._color_scene.add(pyrender.Mesh.from_trimesh(scene.mesh(), smooth=False))
+        self._seg_scene = pyrender.Scene(bg_color=[0.0, 0.0, 0.0, 1.0])
         self._seg_map = {}
         for inst in scene.instances:
-            mesh = pyrender.Mesh.from_trimesh(inst.mesh, smooth=False)
-            node = self._scene.add(mesh, name=f"instance_{inst.instance_id}")
+            node = self._seg_scene.add(pyrender.Mesh.from_trimesh(inst.mesh, smooth=False),
+                                       name=f"instance_{inst.instance_id}")
             self._seg_map[node] = encode_instance_color(inst.instance_id)
         k = self.intrinsics
         # pyrender's projection puts pixel centres at half-integers; shift by half a pixel so that pixel
@@ -80,16 +85,17 @@ class RGBDSensor:
         self._camera = pyrender.IntrinsicsCamera(
             fx=k.fx, fy=k.fy, cx=k.cx + 0.5, cy=k.cy + 0.5, znear=0.02, zfar=self.config.max_depth_m * 2
         )
-        self._camera_node = self._scene.add(self._camera, pose=np.eye(4))
-        # Lights travel with the camera (a head lamp) plus ceiling lights, so no face is ever black.
-        self._head_light = self._scene.add(pyrender.PointLight(color=np.ones(3), intensity=2.0), pose=np.eye(4))
+        self._camera_nodes = [sc.add(self._camera, pose=np.eye(4)) for sc in (self._color_scene, self._seg_scene)]
+        # A head lamp travels with the camera, plus two ceiling lights, so no face is ever black.
+        self._head_light = self._color_scene.add(pyrender.PointLight(color=np.ones(3), intensity=2.0), pose=np.eye(4))
         sx, sy, sz = scene.size_m
-        for fx_ in (0.25, 0.75):
-            for fy_ in (0.25, 0.75):
-                pose = np.eye(4)
-                pose[:3, 3] = [sx * fx_, sy * fy_, sz - 0.2]
-                self._scene.add(pyrender.PointLight(color=np.ones(3), intensity=6.0), pose=pose)
-        self._renderer = pyrender.OffscreenRenderer(k.width, k.height)
+        for fx_ in (0.3, 0.7):
+            pose = np.eye(4)
+            pose[:3, 3] = [sx * fx_, sy * 0.5, sz - 0.2]
+            self._color_scene.add(pyrender.PointLight(color=np.ones(3), intensity=10.0), pose=pose)
+        # One renderer per GL scene: a renderer frees the buffers of meshes not in the scene it draws,
+        # so alternating scenes on one renderer would upload the geometry again every frame.
+        self._renderers = [pyrender.OffscreenRenderer(k.width, k.height) for _ in range(2)]
 
     def render(self, pose: np.ndarray, index: int = 0, timestamp: float | None = None) -> Frame:
         """Render one frame at camera-to-world ``pose`` (4x4, OpenCV axes)."""
@@ -97,11 +103,12 @@ class RGBDSensor:
         if pose.shape != (4, 4) or not np.all(np.isfinite(pose)):
             raise ValueError(f"pose must be a finite 4x4 camera-to-world matrix, got shape {pose.shape}")
         gl_pose = pose @ OPENCV_TO_OPENGL
-        self._scene.set_pose(self._camera_node, gl_pose)
-        self._scene.set_pose(self._head_light, gl_pose)
-        flags = self._pyrender.RenderFlags
-        rgb, depth = self._renderer.render(self._scene)
-        seg, _ = self._renderer.render(self._scene, flags=flags.SEG, seg_node_map=self._seg_map)
+        self._color_scene.set_pose(self._camera_nodes[0], gl_pose)
+        self._seg_scene.set_pose(self._camera_nodes[1], gl_pose)
+        self._color_scene.set_pose(self._head_light, gl_pose)
+        rgb, depth = self._renderers[0].render(self._color_scene)
+        seg, _ = self._renderers[1].render(self._seg_scene, flags=self._pyrender.RenderFlags.SEG,
+                                           seg_node_map=self._seg_map)
         instance = decode_instance_image(seg)
         depth = self._corrupt_depth(depth.astype(np.float32))
         return Frame(
@@ -128,9 +135,9 @@ class RGBDSensor:
 
     def close(self) -> None:
         """Release the GL context."""
-        if self._renderer is not None:
-            self._renderer.delete()
-            self._renderer = None
+        for renderer in getattr(self, "_renderers", []):
+            renderer.delete()
+        self._renderers = []
 
     def __del__(self) -> None:
         try:
