@@ -1,0 +1,40 @@
+"""Evaluation: meshes from instance fields and the vMAP/MACIM geometric metrics.
+
+No PettingZoo, Gymnasium, pyrender or `openmulti_env` imports here.
+"""
+
+from mapping.evaluate.geometry import (
+    COMPLETION_RATIO_THRESHOLD_M,
+    GeometricMetrics,
+    accuracy_completion,
+    empty_metrics,
+    evaluate_mesh,
+    evaluate_per_instance,
+    sample_points,
+)
+from mapping.evaluate.meshing import (
+    INSTANCE_ID_PROPERTY,
+    export_scene_mesh,
+    extract_instance_mesh,
+    grid_for_bound,
+    instance_color,
+    load_scene_mesh,
+    merge_instance_meshes,
+)
+
+__all__ = [
+    "COMPLETION_RATIO_THRESHOLD_M",
+    "GeometricMetrics",
+    "INSTANCE_ID_PROPERTY",
+    "accuracy_completion",
+    "empty_metrics",
+    "evaluate_mesh",
+    "evaluate_per_instance",
+    "export_scene_mesh",
+    "extract_instance_mesh",
+    "grid_for_bound",
+    "instance_color",
+    "load_scene_mesh",
+    "merge_instance_meshes",
+    "sample_points",
+]
