@@ -29,7 +29,6 @@ fi
 
 [ -x "$VENV/bin/python" ] || { echo "[setup] creating $VENV"; "$PY" -m venv "$VENV"; }
 PIP="$VENV/bin/pip"
-"$PIP" install -q --upgrade pip 2>/dev/null || true
 echo "[setup] installing torch==2.13.0 (CPU)"
 "$PIP" install -q torch==2.13.0
 echo "[setup] installing openmulti and its dependencies"

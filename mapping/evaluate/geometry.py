@@ -71,7 +71,9 @@ class GeometricMetrics:
         return out
 
 
-def empty_metrics(n_gt_points: int = 0, ratio_threshold_m: float = COMPLETION_RATIO_THRESHOLD_M) -> GeometricMetrics:
+def empty_metrics(
+    n_gt_points: int = 0, ratio_threshold_m: float = COMPLETION_RATIO_THRESHOLD_M
+) -> GeometricMetrics:
     """The documented result for a missing or empty reconstruction (see the module docstring)."""
     return GeometricMetrics(
         acc_cm=math.inf,

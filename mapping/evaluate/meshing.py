@@ -102,17 +102,25 @@ def _grid_points(
     origin: np.ndarray, voxel_m: float, shape: tuple[int, int, int], start: int, stop: int,
     device: torch.device,
 ) -> torch.Tensor:
-    """World positions of grid samples with flat (C-order) indices in [start, stop); (n, 3) float32."""
-    flat = torch.arange(start, stop, device=device, dtype=torch.int64)
-    ny, nz = shape[1], shape[2]
-    ijk = torch.stack((flat // (ny * nz), (flat // nz) % ny, flat % nz), dim=-1)
-    origin_t = torch.as_tensor(origin, dtype=torch.float64, device=device)
-    return (origin_t + voxel_m * ijk.to(torch.float64)).to(torch.float32)
+    """World positions of grid samples with flat (C-order) indices in [start, stop); (n, 3) float32.
+
+    Index arithmetic is done in NumPy: int64 division in torch on CPU is about 20x slower.
+    """
+    flat = np.arange(start, stop, dtype=np.int64)
+    i, rest = np.divmod(flat, shape[1] * shape[2])
+    j, k = np.divmod(rest, shape[2])
+    points = origin + voxel_m * np.stack((i, j, k), axis=-1)  # (n, 3) float64
+    return torch.from_numpy(points.astype(np.float32)).to(device)
 
 
 @torch.no_grad()
 def _evaluate_in_batches(
-    fn: Callable, make_batch: Callable[[int, int], torch.Tensor], n: int, width: int, batch_points: int, name: str
+    fn: Callable,
+    make_batch: Callable[[int, int], torch.Tensor],
+    n: int,
+    width: int,
+    batch_points: int,
+    name: str,
 ) -> np.ndarray:
     """Call `fn(make_batch(start, stop))` on consecutive batches; (n, width) float32.
 
@@ -123,7 +131,9 @@ def _evaluate_in_batches(
         stop = min(start + batch_points, n)
         values = _as_numpy(fn(make_batch(start, stop)), dtype=np.float32)
         if values.size != (stop - start) * width:
-            raise ValueError(f"{name} returned shape {values.shape} for {stop - start} points, expected width {width}")
+            raise ValueError(
+                f"{name} returned shape {values.shape} for {stop - start} points, expected width {width}"
+            )
         out[start:stop] = values.reshape(stop - start, width)
     return out
 
@@ -193,7 +203,10 @@ def extract_instance_mesh(
 
     if color_fn is not None:
         vert_t = torch.as_tensor(verts, dtype=torch.float32, device=device)
-        colors = _evaluate_in_batches(color_fn, lambda a, b: vert_t[a:b], len(verts), 3, batch_points, "color_fn")
+        def vertex_batch(start: int, stop: int) -> torch.Tensor:
+            return vert_t[start:stop]
+
+        colors = _evaluate_in_batches(color_fn, vertex_batch, len(verts), 3, batch_points, "color_fn")
         mesh.visual.vertex_colors = _to_rgba_uint8(colors)
     return mesh
 
