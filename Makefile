@@ -6,6 +6,7 @@ AGENTS ?= 4
 SCENE ?= room0
 PRESET ?= fast
 OUT ?= runs/demo
+POLICY ?= never
 
 .PHONY: setup demo test bench clean
 
@@ -13,7 +14,7 @@ setup:
 	@bash scripts/setup.sh
 
 demo: setup
-	$(VENV)/bin/openmulti run --scene $(SCENE) --agents $(AGENTS) --preset $(PRESET) --out $(OUT)
+	$(VENV)/bin/openmulti run --scene $(SCENE) --agents $(AGENTS) --policy $(POLICY) --preset $(PRESET) --out $(OUT)
 
 test: setup
 	$(PY) -m pytest tests

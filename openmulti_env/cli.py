@@ -1,11 +1,10 @@
-"""The ``openmulti`` command line: ``scenes`` and ``run`` (world part) today; ``query``, ``reproduce``
-and ``train`` arrive with the mapper, the perception front end and the env."""
+"""The ``openmulti`` command line: ``scenes`` and ``run`` today (``run --policy never`` maps every agent
+alone); ``query``, ``reproduce`` and ``train`` arrive with perception, the multi-agent exchange and the env."""
 
 from __future__ import annotations
 
 import argparse
 import json
-import os
 import sys
 import time
 from pathlib import Path
@@ -13,6 +12,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
+from openmulti_env.results import write_json_atomic
 from openmulti_env.presets import RUN_PRESETS, world_config
 from openmulti_env.world import World, list_presets, make_scene
 from openmulti_env.world.presets import PRESETS
@@ -24,14 +24,6 @@ PENDING = {
     "reproduce": "the paper's tables need the mapper (#3) and the multi-agent optimisation",
     "train": "training communication schedules needs the PettingZoo env",
 }
-
-
-def write_json_atomic(path: Path, data: dict) -> None:
-    """Write JSON through a temporary file and a rename, so a crash never leaves half a file."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(data, indent=2))
-    os.replace(tmp, path)
 
 
 def check_policy(name: str) -> str:
@@ -93,9 +85,12 @@ def cmd_scenes(args: argparse.Namespace) -> int:
 
 
 def cmd_run(args: argparse.Namespace) -> int:
-    """The main job. Today: world, rendering of every frame, coverage, meshes and pictures."""
+    """The main job: with policy ``never`` every agent maps alone and metrics.json is written; other
+    policies need the multi-agent exchange (not built yet), so only the world part runs for them."""
     policy = check_policy(args.policy)
     out = Path(args.out)
+    if policy == "never":
+        return _run_mapping(args, out)
     start = time.perf_counter()
     print(f"[openmulti] scene {args.scene}, {args.agents} agents, preset {args.preset}, seed {args.seed}, policy {policy}")
     t0 = time.perf_counter()
@@ -137,11 +132,32 @@ def cmd_run(args: argparse.Namespace) -> int:
     print(f"{'team':<10} {total:>6} {cov['union_pct']:>10.1f}")
     print()
     print("Ran: scene, observable ground truth, agent paths, RGB-D + instance rendering, coverage.")
-    print("Not run: mapping and its metrics (acc/comp/comp-ratio, F-mIoU) - the mapper is not built yet,"
-          " so no metrics.json was written.")
+    print(f"Not run: mapping. Policy {policy!r} needs the multi-agent exchange of parameters and rays, which is"
+          " not built yet, so no metrics.json was written; --policy never maps every agent alone.")
     print(f"Wrote {out}/world.json, {out}/meshes/, {out}/plots/ in {time.perf_counter() - start:.1f} s")
     world.close()
     return 0
+
+
+def _run_mapping(args: argparse.Namespace, out: Path) -> int:
+    from openmulti_env.run import run  # noqa: PLC0415
+
+    print(f"[openmulti] scene {args.scene}, {args.agents} agents, preset {args.preset}, seed {args.seed}, "
+          f"policy never (each agent maps alone)")
+    result = run(args.scene, args.agents, "never", args.preset, args.seed, out, device=args.device)
+    print()
+    print(f"{'agent':<10} {'acc [cm]':>9} {'comp [cm]':>10} {'comp ratio [%]':>15} {'instances':>10}")
+    for name, m in result["agents"].items():
+        print(f"{name:<10} {_fmt(m['acc_cm']):>9} {_fmt(m['comp_cm']):>10} {_fmt(m['comp_ratio']):>15} {m['instances']:>10}")
+    mean = result["mean"]
+    print(f"{'mean':<10} {_fmt(mean['acc_cm']):>9} {_fmt(mean['comp_cm']):>10} {_fmt(mean['comp_ratio']):>15}")
+    print(f"\nWrote {out}/metrics.json, {out}/meshes/, {out}/plots/ in {result['wall_s']:.1f} s "
+          "(F-mIoU/F-mAcc: null until the perception front end lands)")
+    return 0
+
+
+def _fmt(x) -> str:
+    return "-" if x is None else f"{x:.2f}"
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -165,6 +181,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--preset", choices=RUN_PRESETS, default="fast")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", default="runs/demo")
+    p.add_argument("--device", default="auto", help="cpu, cuda or auto (cuda when available)")
     p.set_defaults(func=cmd_run)
 
     for name, why in PENDING.items():

@@ -1,10 +1,11 @@
-"""Run presets: how big a run is (frames, image size). ``full`` is the reference setting, ``fast`` the
+"""Run presets: how big a run is (frames, image size, mapper effort). ``full`` is the reference setting, ``fast`` the
 default for quick studies, ``tiny`` for tests and smoke runs."""
 
 from __future__ import annotations
 
 from dataclasses import replace
 
+from mapping.agent import MappingConfig
 from openmulti_env.world.paths import PathConfig
 from openmulti_env.world.sensor import SensorConfig
 from openmulti_env.world.world import WorldConfig
@@ -22,4 +23,16 @@ def world_config(preset: str, num_agents: int) -> WorldConfig:
         base = WorldConfig(num_agents=num_agents)
         return replace(base, path=PathConfig(frames_per_agent=24, planning_points=2000),
                        sensor=SensorConfig(width=160, height=120), culling_edge_m=0.1)
+    raise ValueError(f"unknown preset {preset!r}; choose one of {RUN_PRESETS}")
+
+
+def mapping_config(preset: str) -> MappingConfig:
+    """Mapper settings of a run preset (raises ValueError naming the known presets)."""
+    if preset == "full":
+        return MappingConfig(keyframe_every=2, iterations_per_keyframe=20)
+    if preset == "fast":
+        return MappingConfig(keyframe_every=5, iterations_per_keyframe=20)
+    if preset == "tiny":
+        return MappingConfig(keyframe_every=4, iterations_per_keyframe=10, rays_per_object=60, rays_per_structure=120,
+                             object_voxel_m=0.02, structure_voxel_m=0.04)
     raise ValueError(f"unknown preset {preset!r}; choose one of {RUN_PRESETS}")

@@ -42,3 +42,25 @@ def test_bad_input_gives_clear_errors(capsys):
     assert "[0, 1]" in capsys.readouterr().err
     assert main(["query", "x"]) == 2
     assert "not available yet" in capsys.readouterr().err
+
+
+def test_mapping_run_writes_metrics_and_resumes(capsys, tmp_path):
+    out = tmp_path / "map"
+    args = ["run", "--scene", "tiny", "--agents", "2", "--preset", "tiny", "--policy", "never", "--out", str(out),
+            "--device", "cpu"]
+    assert main(args) == 0
+    first = capsys.readouterr().out
+    assert "comp ratio" in first and "mean" in first
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert set(metrics["agents"]) == {"agent_0", "agent_1"}
+    for m in list(metrics["agents"].values()) + [metrics["mean"]]:
+        assert {"acc_cm", "comp_cm", "comp_ratio", "f_miou", "f_macc"} <= set(m)
+        assert 0.0 < m["comp_ratio"] <= 100.0 and m["acc_cm"] > 0
+    assert metrics["bytes_sent_total"] == 0 and metrics["wall_s"] > 0
+    assert metrics["config"]["policy"] == "never"
+    assert (out / "meshes" / "agent_0.ply").exists() and (out / "plots" / "reconstruction_top_down.png").exists()
+    # a second run in the same directory reloads the finished maps instead of mapping again
+    assert main(args) == 0
+    assert capsys.readouterr().out.count("resumed its finished map") == 2
+    again = json.loads((out / "metrics.json").read_text())
+    assert again["agents"] == metrics["agents"]

@@ -105,3 +105,29 @@ def save_frames(path: str | Path, frames: list[Frame], title: str = "") -> Path:
     fig.savefig(path, dpi=100)
     plt.close(fig)
     return path
+
+
+def save_reconstruction_views(path: str | Path, gt_mesh, agent_meshes: list) -> Path:
+    """Ground truth beside each agent's reconstruction, seen from above (vertices coloured by height)."""
+    n = 1 + len(agent_meshes)
+    fig, axes = plt.subplots(1, n, figsize=(4.2 * n, 4.2), squeeze=False)
+    lo, hi = gt_mesh.bounds
+    for ax, (title, mesh) in zip(axes[0], [("ground truth (observable)", gt_mesh)]
+                                 + [(f"agent_{a}", m) for a, m in enumerate(agent_meshes)]):
+        if mesh is not None and len(mesh.vertices):
+            v = np.asarray(mesh.vertices)
+            v = v[v[:, 2] < hi[2] - 0.15]  # leave the ceiling out
+            order = np.argsort(v[:, 2])
+            ax.scatter(v[order, 0], v[order, 1], c=v[order, 2], s=0.2, cmap="viridis", vmin=lo[2], vmax=hi[2])
+        ax.set_title(title)
+        ax.set_xlim(lo[0] - 0.1, hi[0] + 0.1)
+        ax.set_ylim(lo[1] - 0.1, hi[1] + 0.1)
+        ax.set_aspect("equal")
+        ax.set_xticks([])
+        ax.set_yticks([])
+    fig.tight_layout()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
