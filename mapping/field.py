@@ -5,25 +5,28 @@ Network (vMAP's ``OccupancyMap``), hidden width W (32 for objects, 128 for struc
 ceiling)::
 
     x (world) -> u in [-1, 1]^3 (the instance's box) -> t = u / encoding_scale
-    encoding: proj_j = d_j . t on 21 fixed directions d_j; sin(pi 2^k proj_j) for k = 0..5 (sin only,
-              as vMAP's UniDirsEmbed), grouped by band:
-              geometry input  = [t, bands 0-3]      3 + 4*21 = 87
-              colour extra    = bands 4-5               2*21 = 42
+    encoding: a_j = d_j . t on 21 fixed directions d_j; sin(pi 2^k a_j) for k = 0..5 (sin only, as
+              vMAP's UniDirsEmbed); geometry input = [bands 0-3, t]   4*21 + 3 = 87
+                                    colour extra   = bands 4-5         2*21     = 42
     geometry: 87 -> W, W -> W, skip [h, geometry input] (W+87) -> W, W -> W, W -> 1 (ReLU between)
     colour:   [h, colour extra] (W+42) -> W -> 3, sigmoid
     occupancy o = sigmoid(10 * raw)
 
-Why stacked ``bmm``/``baddbmm`` and not ``torch.func.functional_call`` + ``vmap``: on this 2-core CPU
-vmap lowers each Linear to the same batched matmuls but adds its own batching overhead (measured 1.3x
-slower at 20 x 1200 points, 4x slower at 100 x 120), and a Python loop is 2-25x slower. The skip and
-colour layers are split into their hidden and encoding halves: the encoding products of the first and
-skip layers are one (87, 2W) matmul at the start, and no gradient is computed for the encodings
-(the concatenated form would waste 12 % of the backward work on them).
+Why stacked ``bmm``/``baddbmm`` and not ``torch.func.functional_call`` + ``vmap``: vmap lowers each
+Linear to the same batched matmuls plus its own batching overhead, and cannot merge layers; on this
+2-core CPU its forward + backward took 1.15-1.4x as long as the hand-batched form, and a Python loop
+over instances (one module and one AdamW each) 1.2-18x as long as the whole batched step
+(``benchmarks/bench_field.py`` measures all three). The layers are stored split and merged for speed
+(see ``param_layout``): the first layer and the skip layer's encoding rows are one (87, 2W) matmul;
+the occupancy output rides as one extra column of the colour layer (a 1-column matmul runs at 2-3
+GFLOP/s); and no gradient is computed for the encodings (vMAP's concatenated skip and colour inputs
+would waste 12 % of the backward work on them).
 
 Why one flat (N, D) parameter: each instance is one row, so sending an instance's parameters between
 agents, the parameter-consistency loss (eq. 12) and DiNNO/DSGD mixing are row operations, growth is a
-row concatenation, and Adam runs over one tensor. The forward splits the row into per-layer views
-(one autograd split, whose backward writes each gradient straight into one (N, D) buffer).
+row concatenation, and Adam is one fused pass. The forward splits the rows into per-layer views (one
+autograd split, whose backward writes all gradients into one (N, D) buffer). ``add_instances``
+replaces the parameter tensor: always read ``bank.params`` afresh.
 """
 
 from __future__ import annotations
@@ -43,7 +46,7 @@ GEOMETRY_INPUT_DIM = 3 + GEOMETRY_BANDS * N_DIRECTIONS  # 87
 COLOUR_INPUT_DIM = (N_BANDS - GEOMETRY_BANDS) * N_DIRECTIONS  # 42
 LOGIT_LIMIT = 30.0
 """Occupancy logits are clamped to +-30: beyond, o is 1 or < 1e-13 in float32 anyway, and the sigmoid's
-gradient would underflow into denormal floats, which make every later CPU operation 10-100x slower."""
+gradient would underflow into denormal floats (slow on many CPUs) that then spread through backward."""
 
 
 def resolve_device(device: str | torch.device = "auto") -> torch.device:
@@ -79,34 +82,39 @@ def icosahedron_directions() -> Tensor:
 def encode_positions(unit_coords: Tensor, directions: Tensor, scale: float) -> tuple[Tensor, Tensor]:
     """vMAP's directional sine encoding, split into the geometry input and the colour-only extra.
 
-    sin(2^k a) for k = 1..5 comes from sin a and cos a by the double-angle recursion (two multiplies
-    per band instead of a sine of a large argument: 2x faster on CPU and no less accurate, since the
-    float32 argument 2^5 pi a itself carries an error of ~1e-5). All features are written into one
-    (..., 129) buffer laid out [bands 4-5 | bands 0-3 | t] so both outputs are views, no concatenation.
+    Speed on CPU (measured 1.7x faster than the direct form): sin(2^k a) for k >= 1 comes from sin a
+    and cos a by the double-angle recursion (one multiply and one fused multiply-add per band instead
+    of a sine of a large argument; no less accurate, since the float32 argument 2^5 pi a itself
+    carries ~1e-5 error), and the features are written feature-major into one (..., 129, P) buffer,
+    so every elementwise pass runs over long contiguous rows; the outputs are transposed views of it,
+    which the matmuls read at no cost.
 
     Args:
-        unit_coords: (..., 3) box coordinates (inside the box in [-1, 1]).
+        unit_coords: (..., P, 3) box coordinates (inside the box in [-1, 1]).
         directions: (21, 3) unit projection directions.
         scale: coordinates are divided by it first (vMAP: obj_scale).
 
     Returns:
-        (..., 87) geometry input [sin bands 0-3, t] and (..., 42) colour extra [sin bands 4-5], where
-        t = u / scale and band k is sin(pi 2^k d_j . t); both are views of one buffer.
+        (..., P, 87) geometry input [sin bands 0-3, t] and (..., P, 42) colour extra [sin bands 4-5],
+        where t = u / scale and band k is sin(pi 2^k d_j . t).
     """
     n_dir, n_col = N_DIRECTIONS, COLOUR_INPUT_DIM
-    out = unit_coords.new_empty(*unit_coords.shape[:-1], n_col + GEOMETRY_INPUT_DIM)
-    torch.div(unit_coords, scale, out=out[..., -3:])
-    phase = unit_coords @ (directions.T * (math.pi / scale))  # (..., 21), band 0
-    starts = [n_col + k * n_dir for k in range(GEOMETRY_BANDS)] + [k * n_dir for k in range(N_BANDS - GEOMETRY_BANDS)]
-    s = torch.sin(phase, out=out[..., starts[0] : starts[0] + n_dir])
+    eye = torch.eye(3, dtype=unit_coords.dtype, device=unit_coords.device)
+    projection = torch.cat([directions.to(unit_coords) * math.pi, eye]) / scale  # (24, 3): band-0 phases and t
+    phase_t = projection @ unit_coords.transpose(-1, -2)  # (..., 24, P)
+    features = unit_coords.new_empty(*phase_t.shape[:-2], n_col + GEOMETRY_INPUT_DIM, phase_t.shape[-1])
+    features[..., -3:, :] = phase_t[..., n_dir:, :]
+    rows = [n_col + k * n_dir for k in range(GEOMETRY_BANDS)] + [k * n_dir for k in range(N_BANDS - GEOMETRY_BANDS)]
+    phase = phase_t[..., :n_dir, :]
+    s = torch.sin(phase, out=features[..., rows[0] : rows[0] + n_dir, :])
     c2 = torch.cos(phase).mul_(2.0)  # 2 cos a
     two = torch.full((), 2.0, dtype=phase.dtype, device=phase.device)
     for k in range(1, N_BANDS):
-        s_next = torch.mul(s, c2, out=out[..., starts[k] : starts[k] + n_dir])  # sin 2a = sin a * 2 cos a
+        s_next = torch.mul(s, c2, out=features[..., rows[k] : rows[k] + n_dir, :])  # sin 2a = sin a * 2 cos a
         if k + 1 < N_BANDS:
             c2 = torch.addcmul(two, s, s, value=-4.0)  # 2 cos 2a = 2 - 4 sin^2 a
         s = s_next
-    return out[..., n_col:], out[..., :n_col]
+    return features[..., n_col:, :].transpose(-1, -2), features[..., :n_col, :].transpose(-1, -2)
 
 
 def param_layout(width: int) -> list[tuple[str, tuple[int, ...]]]:
@@ -278,8 +286,8 @@ class InstanceFieldBank(nn.Module):
     def to_unit(self, points: Tensor, rows: Tensor | None = None) -> Tensor:
         """World (n, P, 3) -> box coordinates, [-1, 1]^3 inside each instance's box."""
         bmin, bmax = (self.bound_min, self.bound_max) if rows is None else (self.bound_min[rows], self.bound_max[rows])
-        centre, half = (bmax + bmin) / 2.0, (bmax - bmin) / 2.0
-        return (points - centre[:, None]) / half[:, None]
+        centre, inv_half = (bmax + bmin) / 2.0, 2.0 / (bmax - bmin)
+        return (points - centre[:, None]) * inv_half[:, None]
 
     def forward(self, points: Tensor, rows: Tensor | None = None, with_colour: bool = True) -> FieldOutput:
         """Evaluate every instance (or ``rows``) on its own points, as one batched computation.
@@ -323,8 +331,8 @@ class InstanceFieldBank(nn.Module):
         occupancies, colours = [], []
         for i in range(self.num_instances):
             p = self.split_params(self.params[i])
-            geometry, colour_in = encode_positions(self.to_unit(points[i : i + 1], torch.tensor([i], device=self.device))[0],
-                                                   self.directions, self.config.encoding_scale)
+            unit = self.to_unit(points[i : i + 1], torch.tensor([i], device=self.device))[0]
+            geometry, colour_in = encode_positions(unit, self.directions, self.config.encoding_scale)
             b_in, b_skip = p["b_enc"][:w], p["b_enc"][w:]
             w_in, w_skip = p["w_enc"][:, :w], torch.cat([p["w_skip"], p["w_enc"][:, w:]])
             w_col, b_col = torch.cat([p["w_head"][:, :w], p["w_col_enc"]]), p["b_head"][:w]
@@ -392,7 +400,8 @@ class InstanceFieldBank(nn.Module):
 
     def set_extra_state(self, state: dict) -> None:
         if state["hidden_width"] != self.config.hidden_width:
-            raise ValueError(f"checkpoint has hidden width {state['hidden_width']}, this bank {self.config.hidden_width}")
+            raise ValueError(f"checkpoint has hidden width {state['hidden_width']}, "
+                             f"this bank {self.config.hidden_width}")
         self.config = FieldConfig(**state)
 
     def load_state_dict(self, state_dict, strict: bool = True, assign: bool = False):

@@ -60,7 +60,8 @@ def camera_rays(c2w: Tensor, intrinsics: Intrinsics, u: Tensor, v: Tensor) -> Ra
         intrinsics: the pinhole camera.
         u, v: (*batch,) pixel column and row.
     """
-    cam = torch.stack([(u - intrinsics.cx) / intrinsics.fx, (v - intrinsics.cy) / intrinsics.fy, torch.ones_like(u)], -1)
+    x, y = (u - intrinsics.cx) / intrinsics.fx, (v - intrinsics.cy) / intrinsics.fy
+    cam = torch.stack([x, y, torch.ones_like(u)], -1)
     rotation, origin = c2w[..., :3, :3], c2w[..., :3, 3]
     directions = (rotation @ cam.unsqueeze(-1)).squeeze(-1)
     return RayBundle(origin.expand_as(directions).contiguous(), directions)

@@ -197,3 +197,20 @@ def compute_observable_surface(
     vis = visibility_matrix(caster, np.asarray(viewpoints)[order], np.asarray(mesh.triangles_center),
                             np.asarray(mesh.face_normals), max_range_m, stop_when_seen=True)
     return ObservableSurface(mesh, face_ids, vis.any(axis=0), np.asarray(viewpoints))
+
+
+def cull_to_viewpoints(mesh: trimesh.Trimesh, viewpoints: np.ndarray, max_range_m: float = 8.0) -> trimesh.Trimesh:
+    """Keep the faces of ``mesh`` that the ``viewpoints`` can see, occlusion by ``mesh`` itself included.
+
+    The reconstruction gets the same treatment as the ground truth (``compute_observable_surface``):
+    surfaces that no camera in free space could ever see (the closed back of a wall's field box,
+    occupancy hallucinated inside furniture) are not scored, as published evaluations cull meshes to
+    observed space.
+    """
+    if len(mesh.faces) == 0:
+        return mesh
+    caster = MeshRaycaster(mesh)
+    order = np.random.default_rng(0).permutation(len(viewpoints))
+    vis = visibility_matrix(caster, np.asarray(viewpoints)[order], np.asarray(mesh.triangles_center),
+                            np.asarray(mesh.face_normals), max_range_m, stop_when_seen=True)
+    return mesh.submesh([np.flatnonzero(vis.any(axis=0))], append=True, repair=False)
