@@ -18,12 +18,13 @@ import trimesh
 
 from mapping.bounds import InstanceBound
 from mapping.checkpoint import load_checkpoint, save_checkpoint
-from mapping.data import Frame
+from mapping.data import Frame, Intrinsics
 from mapping.evaluate import extract_instance_mesh, merge_instance_meshes
 from mapping.field import OBJECT_FIELD, AdamConfig, STRUCTURE_FIELD, InstanceFieldBank, StackedAdam, resolve_device
 from mapping.keyframes import KeyframeBuffer
 from mapping.losses import DataLossWeights, data_loss
-from mapping.render import RayBundle, SamplerConfig, ray_aabb, render_occupancy, sample_along_rays
+from mapping.render import (CompositeConfig, CompositeRender, RayBundle, SamplerConfig, ray_aabb, render_image,
+                            render_occupancy, sample_along_rays)
 
 
 @dataclass
@@ -172,6 +173,21 @@ class MappingAgent:
             if mesh is not None:
                 meshes[iid] = mesh
         return meshes
+
+    @torch.no_grad()
+    def render_view(self, pose: np.ndarray, intrinsics: Intrinsics, stride: int = 4,
+                    samples_per_box: int = 24) -> CompositeRender:
+        """Depth, colour and instance-id images of the whole map from ``pose`` (camera-to-world, OpenCV),
+        every ``stride``-th pixel: all instances composited along each ray by depth."""
+        fields, labels = [], []
+        for name, bank in self.banks.items():
+            rows = {s.row: iid for iid, s in self.slots.items() if s.bank == name}
+            if rows:
+                fields.append(bank)
+                labels.append(torch.as_tensor([rows[r] for r in range(bank.num_instances)], device=self.device))
+        c2w = torch.as_tensor(pose, dtype=torch.float32, device=self.device)
+        return render_image(fields, c2w, intrinsics, CompositeConfig(samples_per_box=samples_per_box), stride=stride,
+                            labels=labels)
 
     def scene_mesh(self) -> tuple[trimesh.Trimesh, np.ndarray]:
         """All instance meshes merged, with (n_vertices,) instance ids."""

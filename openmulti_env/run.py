@@ -77,6 +77,7 @@ def run(scene: str, agents: int, policy: str, preset: str, seed: int, out: Path,
                                    "comp_ratio": float(metrics.comp_ratio), "f_miou": None, "f_macc": None,
                                    "acc_cm_unculled": _finite(raw.acc_cm), "instances": len(mapper.slots)}
         meshes.append(mesh)
+        _save_rendered_views(out / "plots" / f"rendered_views_agent_{a}.png", world, a, mapper)
     mean = {k: _mean([m[k] for m in per_agent.values()]) for k in METRIC_KEYS}
     result = {
         "agents": per_agent, "mean": mean, "bytes_sent_total": 0, "wall_s": time.perf_counter() - start,
@@ -91,6 +92,19 @@ def run(scene: str, agents: int, policy: str, preset: str, seed: int, out: Path,
     save_reconstruction_views(out / "plots" / "reconstruction_top_down.png", gt, meshes)
     world.close()
     return result
+
+
+def _save_rendered_views(path: Path, world: World, agent: int, mapper: MappingAgent, stride: int = 4) -> None:
+    """Two views of the agent's path: the sensor's RGB and depth beside the map rendered from the same pose."""
+    from openmulti_env.world.plots import save_view_comparison  # noqa: PLC0415
+
+    poses = world.agent_poses[agent]
+    views = []
+    for i in (len(poses) // 3, 2 * len(poses) // 3):
+        frame = world.render(agent, i)
+        rendered = mapper.render_view(poses[i], world.intrinsics, stride=stride)
+        views.append((frame, rendered.colour.cpu().numpy(), rendered.depth.cpu().numpy()))
+    save_view_comparison(path, views, stride, f"{world.scene.name} agent_{agent}: sensor vs map")
 
 
 def _finite(x: float) -> float | None:

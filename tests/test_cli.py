@@ -59,6 +59,7 @@ def test_mapping_run_writes_metrics_and_resumes(capsys, tmp_path):
     assert metrics["bytes_sent_total"] == 0 and metrics["wall_s"] > 0
     assert metrics["config"]["policy"] == "never"
     assert (out / "meshes" / "agent_0.ply").exists() and (out / "plots" / "reconstruction_top_down.png").exists()
+    assert (out / "plots" / "rendered_views_agent_1.png").stat().st_size > 10_000
     # a second run in the same directory reloads the finished maps instead of mapping again
     assert main(args) == 0
     assert capsys.readouterr().out.count("resumed its finished map") == 2

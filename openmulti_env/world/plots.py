@@ -131,3 +131,29 @@ def save_reconstruction_views(path: str | Path, gt_mesh, agent_meshes: list) -> 
     fig.savefig(path, dpi=100)
     plt.close(fig)
     return path
+
+
+def save_view_comparison(path: str | Path, views: list, stride: int, title: str = "") -> Path:
+    """Rows of (sensor RGB, map colour, sensor depth, map depth); ``views`` holds (Frame, colour (h, w, 3),
+    depth (h, w)) with the map rendered at every ``stride``-th pixel."""
+    fig, axes = plt.subplots(len(views), 4, figsize=(12, 2.6 * len(views)), squeeze=False)
+    for row, (frame, colour, depth) in zip(axes, views):
+        vmax = float(frame.depth.max()) or 1.0
+        row[0].imshow(frame.rgb)
+        row[1].imshow(np.clip(colour, 0, 1), interpolation="nearest")
+        row[2].imshow(frame.depth[::stride, ::stride], cmap="viridis", vmin=0, vmax=vmax, interpolation="nearest")
+        row[3].imshow(depth, cmap="viridis", vmin=0, vmax=vmax, interpolation="nearest")
+        row[0].set_ylabel(f"frame {frame.index}")
+        for ax in row:
+            ax.set_xticks([])
+            ax.set_yticks([])
+    for ax, name in zip(axes[0], ("sensor RGB", "map colour", "sensor depth", "map depth")):
+        ax.set_title(name)
+    if title:
+        fig.suptitle(title)
+    fig.tight_layout()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
