@@ -18,6 +18,18 @@ from openmulti_env.world.scene import Scene  # noqa: E402
 AGENT_COLORS = plt.get_cmap("tab10").colors
 
 
+def _save_figure(fig, path: str | Path, title: str = "", dpi: int = 100) -> Path:
+    """Title, tighten, write the PNG (creating its folder) and free the figure."""
+    if title:
+        fig.suptitle(title)
+    fig.tight_layout()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=dpi)
+    plt.close(fig)
+    return path
+
+
 def draw_top_down(ax, scene: Scene) -> None:
     """Room seen from above: faces drawn lowest first in their own colours (ceiling left out)."""
     polys, colors, heights = [], [], []
@@ -74,12 +86,7 @@ def save_world_overview(path: str | Path, scene: Scene, agent_poses: list[np.nda
     axes[1].set_xlim(-0.1, sx + 0.1)
     axes[1].set_ylim(-0.1, sy + 0.1)
     axes[1].set_title("coverage: agent colour = seen by that agent only, grey = 2+, red = nobody")
-    fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return _save_figure(fig, path, dpi=110)
 
 
 def save_frames(path: str | Path, frames: list[Frame], title: str = "") -> Path:
@@ -97,14 +104,7 @@ def save_frames(path: str | Path, frames: list[Frame], title: str = "") -> Path:
     axes[0][0].set_title("RGB")
     axes[0][1].set_title("depth [m]")
     axes[0][2].set_title("instance id")
-    if title:
-        fig.suptitle(title)
-    fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return path
+    return _save_figure(fig, path, title)
 
 
 def save_reconstruction_views(path: str | Path, gt_mesh, agent_meshes: list) -> Path:
@@ -125,12 +125,7 @@ def save_reconstruction_views(path: str | Path, gt_mesh, agent_meshes: list) -> 
         ax.set_aspect("equal")
         ax.set_xticks([])
         ax.set_yticks([])
-    fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return path
+    return _save_figure(fig, path)
 
 
 def save_view_comparison(path: str | Path, views: list, stride: int, title: str = "") -> Path:
@@ -149,11 +144,4 @@ def save_view_comparison(path: str | Path, views: list, stride: int, title: str 
             ax.set_yticks([])
     for ax, name in zip(axes[0], ("sensor RGB", "map colour", "sensor depth", "map depth")):
         ax.set_title(name)
-    if title:
-        fig.suptitle(title)
-    fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return path
+    return _save_figure(fig, path, title)
