@@ -1,0 +1,89 @@
+"""The code book: instance id -> (visual feature or none, caption feature, caption text, confidence).
+
+Semantic features live here, not in the networks (paper, sec. III-D). Saved as ``NAME.json`` (ids,
+captions, confidences, labels) beside ``NAME.npz`` (the feature arrays), each written atomically.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+
+class CodeBookError(ValueError):
+    """A code book file is missing, corrupt or inconsistent."""
+
+
+@dataclass
+class CodeBookEntry:
+    """What the map knows about one instance's meaning.
+
+    Attributes:
+        caption: caption text.
+        caption_feature: (384,) float32 unit vector.
+        visual_feature: (D,) float32 unit vector, or None when no image-text encoder is loaded.
+        confidence: eq. 1-2, in [0, 1].
+        label: zero-shot category, filled by the semantic evaluation (None before).
+    """
+
+    caption: str
+    caption_feature: np.ndarray
+    visual_feature: np.ndarray | None = None
+    confidence: float = 0.0
+    label: str | None = None
+
+
+class CodeBook(dict):
+    """``dict[int, CodeBookEntry]`` with atomic save / load."""
+
+    def save(self, directory: str | Path, name: str) -> Path:
+        """Write ``directory/name.json`` and ``directory/name.npz``; returns the JSON path."""
+        directory = Path(directory)
+        directory.mkdir(parents=True, exist_ok=True)
+        ids = sorted(self)
+        arrays = {f"caption_{i}": np.asarray(self[i].caption_feature, np.float32) for i in ids}
+        arrays.update({f"visual_{i}": np.asarray(self[i].visual_feature, np.float32)
+                       for i in ids if self[i].visual_feature is not None})
+        meta = {"version": 1, "instances": [{"id": int(i), "caption": self[i].caption,
+                                              "confidence": float(self[i].confidence), "label": self[i].label,
+                                              "has_visual": self[i].visual_feature is not None} for i in ids]}
+        _atomic_write(directory / f"{name}.npz", lambda f: np.savez(f, **arrays))
+        path = directory / f"{name}.json"
+        _atomic_write(path, lambda f: f.write(json.dumps(meta, indent=1).encode()))
+        return path
+
+    @classmethod
+    def load(cls, directory: str | Path, name: str) -> "CodeBook":
+        """Read a code book written by ``save`` (CodeBookError naming the file when unusable)."""
+        json_path, npz_path = Path(directory) / f"{name}.json", Path(directory) / f"{name}.npz"
+        for p in (json_path, npz_path):
+            if not p.is_file():
+                raise CodeBookError(f"code book file missing: {p}")
+        try:
+            meta = json.loads(json_path.read_text())
+            with np.load(npz_path) as arrays:
+                book = cls()
+                for rec in meta["instances"]:
+                    i = int(rec["id"])
+                    book[i] = CodeBookEntry(rec["caption"], arrays[f"caption_{i}"],
+                                            arrays[f"visual_{i}"] if rec["has_visual"] else None,
+                                            float(rec["confidence"]), rec.get("label"))
+        except (ValueError, KeyError, TypeError, OSError) as exc:
+            raise CodeBookError(f"corrupt code book {json_path} / {npz_path}: {exc}") from exc
+        return book
+
+
+def _atomic_write(path: Path, write) -> None:
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as f:
+            write(f)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
