@@ -33,13 +33,12 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from mapping.field import (  # noqa: E402
     COLOUR_INPUT_DIM,
     GEOMETRY_INPUT_DIM,
-    AdamConfig,
     FieldConfig,
     InstanceFieldBank,
-    StackedAdam,
     encode_positions,
     mlp_flops_per_point,
 )
+from mapping.optim import AdamConfig, StackedAdam  # noqa: E402
 
 SETTINGS = [(32, 20, 1200), (32, 100, 120), (32, 20, 240), (128, 4, 1200)]  # (width, instances, points)
 """vMAP: 120 rays x 10 samples per object per step (1200 points), 1200 rays for the background (W=128)."""

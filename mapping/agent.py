@@ -20,7 +20,8 @@ from mapping.bounds import InstanceBound
 from mapping.checkpoint import load_checkpoint, save_checkpoint
 from mapping.data import Frame, Intrinsics
 from mapping.evaluate import extract_instance_mesh, merge_instance_meshes
-from mapping.field import OBJECT_FIELD, AdamConfig, STRUCTURE_FIELD, InstanceFieldBank, StackedAdam, resolve_device
+from mapping.field import OBJECT_FIELD, STRUCTURE_FIELD, InstanceFieldBank, resolve_device
+from mapping.optim import AdamConfig, StackedAdam
 from mapping.keyframes import KeyframeBuffer
 from mapping.losses import DataLossWeights, data_loss
 from mapping.render import (CompositeConfig, CompositeRender, RayBundle, SamplerConfig, ray_aabb, render_image,

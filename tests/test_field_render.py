@@ -14,16 +14,14 @@ from mapping.data.frame import Intrinsics
 from mapping.field import (
     COLOUR_INPUT_DIM,
     GEOMETRY_INPUT_DIM,
-    AdamConfig,
     FieldConfig,
     FieldOutput,
     InstanceFieldBank,
-    StackedAdam,
-    _reference_adamw,
     encode_positions,
     icosahedron_directions,
     resolve_device,
 )
+from mapping.optim import AdamConfig, StackedAdam, _reference_adamw
 from mapping.losses import DataLossWeights, data_loss, depth_loss, masked_mean, occupancy_loss
 from mapping.render import (
     CompositeConfig,
