@@ -1,0 +1,164 @@
+"""The Instance Collaborative Graph (paper, sec. III-C).
+
+Vertices are instances of all agents; an edge joins two instances of DIFFERENT agents that exchanged
+point clouds when their clouds overlap enough (eq. 3-4): IoU >= ``iou_threshold`` or IoB, in either
+direction, >= ``iob_threshold``. The IoB edge is what joins a partial view (viewpoint loss) or a piece
+(over-segmentation) to the whole object. Connected components are the clusters, each led by its most
+confident member (the reference).
+
+A vertex is a ``Node`` = (agent, local_id, part): part 0 is a whole local instance; parts 1, 2, ...
+are the pieces an under-segmented instance was split into (see ``corrections``), so the graph can
+replace a vertex by its pieces and cluster again.
+"""
+
+from __future__ import annotations
+
+from collections import defaultdict
+from dataclasses import dataclass
+from typing import Iterable
+
+import networkx as nx
+import numpy as np
+
+from mapping.alignment.overlap import check_points, iou_from_counts, pairwise_overlap_counts
+
+Node = tuple[str, int, int]
+"""(agent name, local instance id, part): part 0 = the whole instance, >= 1 = a piece of a split one."""
+
+
+@dataclass(frozen=True)
+class Cluster:
+    """One connected component of the graph: instances that are one physical object.
+
+    Attributes:
+        members: its vertices, sorted.
+        reference: the member with the highest confidence (ties: the smallest node), whose caption,
+            features and id every member takes.
+    """
+
+    members: tuple[Node, ...]
+    reference: Node
+
+
+class InstanceCollaborativeGraph:
+    """Cross-agent overlap graph of instance clouds; clusters = connected components.
+
+    Args:
+        radius_m: overlap distance of eq. 3-4.
+        iou_threshold: edge when IoU >= this.
+        iob_threshold: edge when IoB in either direction >= this.
+        links: agent pairs that exchanged clouds; None = every pair of agents is linked.
+    """
+
+    def __init__(self, radius_m: float, iou_threshold: float, iob_threshold: float,
+                 links: Iterable[tuple[str, str]] | None = None):
+        for name, value in (("iou_threshold", iou_threshold), ("iob_threshold", iob_threshold)):
+            if not 0.0 < value <= 1.0:
+                raise ValueError(f"{name} must be in (0, 1], got {value}")
+        if radius_m < 0:
+            raise ValueError(f"radius_m must be >= 0, got {radius_m}")
+        self.radius_m = radius_m
+        self.iou_threshold = iou_threshold
+        self.iob_threshold = iob_threshold
+        self.links = None if links is None else {frozenset(link) for link in links}
+        self.graph = nx.Graph()
+        self._clouds: dict[Node, np.ndarray] = {}
+        self._confidence: dict[Node, float] = {}
+        self._count: dict[tuple[Node, Node], int] = {}  # (u, v) -> points of u that overlap v, nonzero
+        self._overlapping: dict[Node, set[Node]] = defaultdict(set)
+
+    # ----------------------------------------------------------------------------------- building
+    def linked(self, agent_a: str, agent_b: str) -> bool:
+        """Whether the two (different) agents exchanged clouds."""
+        if agent_a == agent_b:
+            return False
+        return self.links is None or frozenset((agent_a, agent_b)) in self.links
+
+    def add_instances(self, clouds: dict[Node, np.ndarray], confidence: dict[Node, float]) -> None:
+        """Add vertices, measure their overlap with every linked vertex, and add the edges they earn.
+
+        Args:
+            clouds: node -> (n, 3) float64 down-sampled world points.
+            confidence: node -> eq. 1-2 confidence, for every node in ``clouds``.
+        """
+        for node, cloud in clouds.items():
+            if node in self._clouds:
+                raise ValueError(f"node {node} is already in the graph")
+            if node not in confidence:
+                raise ValueError(f"node {node} has no confidence")
+            self._clouds[node] = check_points(cloud, f"points of {node}")
+            self._confidence[node] = float(confidence[node])
+            self.graph.add_node(node)
+        new_by_agent: dict[str, list[Node]] = defaultdict(list)
+        for node in sorted(clouds):
+            new_by_agent[node[0]].append(node)
+        new = set(clouds)
+        for agent_a, nodes_a in new_by_agent.items():
+            for agent_b in sorted({n[0] for n in self._clouds}):
+                if not self.linked(agent_a, agent_b):
+                    continue
+                # a new node meets an old node once; two new nodes once, from the smaller agent name
+                targets = [n for n in sorted(self._clouds) if n[0] == agent_b
+                           and (n not in new or agent_a < agent_b)]
+                self._measure(nodes_a, targets)
+
+    def remove(self, node: Node) -> None:
+        """Drop a vertex with its overlaps and edges (before adding its pieces)."""
+        for other in self._overlapping.pop(node, set()):
+            self._overlapping[other].discard(node)
+            self._count.pop((node, other), None)
+            self._count.pop((other, node), None)
+        self.graph.remove_node(node)
+        del self._clouds[node], self._confidence[node]
+
+    def _measure(self, nodes_a: list[Node], nodes_b: list[Node]) -> None:
+        if not nodes_a or not nodes_b:
+            return
+        n_ab, n_ba = pairwise_overlap_counts([self._clouds[n] for n in nodes_a],
+                                             [self._clouds[n] for n in nodes_b], self.radius_m)
+        for i, j in zip(*np.nonzero((n_ab > 0) | (n_ba > 0))):
+            u, v = nodes_a[i], nodes_b[j]
+            self._count[(u, v)], self._count[(v, u)] = int(n_ab[i, j]), int(n_ba[i, j])
+            self._overlapping[u].add(v)
+            self._overlapping[v].add(u)
+            if self.iou(u, v) >= self.iou_threshold or max(self.iob(u, v), self.iob(v, u)) >= self.iob_threshold:
+                self.graph.add_edge(u, v, iou=self.iou(u, v))
+
+    # ------------------------------------------------------------------------------------ queries
+    @property
+    def nodes(self) -> list[Node]:
+        """All vertices, sorted."""
+        return sorted(self._clouds)
+
+    def cloud(self, node: Node) -> np.ndarray:
+        """(n, 3) float64 down-sampled points of a vertex."""
+        return self._clouds[node]
+
+    def confidence(self, node: Node) -> float:
+        """Eq. 1-2 confidence of a vertex."""
+        return self._confidence[node]
+
+    def overlapping(self, node: Node) -> list[Node]:
+        """Vertices of linked agents that share at least one overlapping point with ``node``, sorted."""
+        return sorted(self._overlapping.get(node, ()))
+
+    def iob(self, u: Node, v: Node) -> float:
+        """Eq. 4, IoB of u into v: share of u's points that overlap v (0 when not measured)."""
+        n_u = len(self._clouds[u])
+        return self._count.get((u, v), 0) / n_u if n_u else 0.0
+
+    def iou(self, u: Node, v: Node) -> float:
+        """Eq. 3 (symmetric); 0 for vertices that do not overlap."""
+        if (u, v) not in self._count:
+            return 0.0
+        return float(iou_from_counts(len(self._clouds[u]), len(self._clouds[v]),
+                                     self._count[(u, v)], self._count[(v, u)]))
+
+    def clusters(self) -> list[Cluster]:
+        """Connected components with their references, sorted by reference node."""
+        out = []
+        for component in nx.connected_components(self.graph):
+            members = tuple(sorted(component))
+            reference = min(members, key=lambda n: (-self._confidence[n], n))
+            out.append(Cluster(members, reference))
+        return sorted(out, key=lambda c: c.reference)
