@@ -20,7 +20,6 @@ from openmulti_env.world.world import MAX_AGENTS
 
 SCRIPTED_POLICIES = ("always", "never", "round_robin", "budget")
 PENDING = {
-    "query": "open-vocabulary retrieval arrives with the perception issue (#4)",
     "reproduce": "the paper's tables need the mapper (#3) and the multi-agent optimisation",
     "train": "training communication schedules needs the PettingZoo env",
 }
@@ -156,6 +155,15 @@ def _run_mapping(args: argparse.Namespace, out: Path) -> int:
     return 0
 
 
+def cmd_query(args: argparse.Namespace) -> int:
+    """Rank a run's instances against a text query; print JSON and write DIR/plots/query_<slug>.png."""
+    from openmulti_env.query import run_query  # noqa: PLC0415
+
+    result = run_query(args.run, args.text, top_k=args.top, clip_checkpoint=args.clip_checkpoint)
+    print(json.dumps(result.payload, indent=2))
+    return 0
+
+
 def _fmt(x) -> str:
     return "-" if x is None else f"{x:.2f}"
 
@@ -183,6 +191,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default="runs/demo")
     p.add_argument("--device", default="auto", help="cpu, cuda or auto (cuda when available)")
     p.set_defaults(func=cmd_run)
+
+    p = sub.add_parser("query", help="open-vocabulary instance retrieval on a finished run")
+    p.add_argument("text", metavar="TEXT", help='what to look for, e.g. "somewhere to sleep"')
+    p.add_argument("--run", required=True, metavar="DIR", help="run directory (with codebook/ and meshes/)")
+    p.add_argument("--top", type=int, default=5, metavar="K", help="how many instances to print")
+    p.add_argument("--clip-checkpoint", metavar="PATH", help="local image-text (CLIP) checkpoint: adds the visual term")
+    p.set_defaults(func=cmd_query)
 
     for name, why in PENDING.items():
         p = sub.add_parser(name, help=f"(not available yet: {why})")

@@ -38,3 +38,24 @@ __all__ = [
     "merge_instance_meshes",
     "sample_points",
 ]
+
+from mapping.evaluate.retrieval import RetrievalHit, score_instances  # noqa: E402
+from mapping.evaluate.semantic import (  # noqa: E402
+    ClassRow,
+    SemanticMetrics,
+    ground_truth_semantic_points,
+    per_class_table,
+    semantic_metrics,
+    zero_shot_labels,
+)
+
+__all__ += [
+    "ClassRow",
+    "RetrievalHit",
+    "SemanticMetrics",
+    "ground_truth_semantic_points",
+    "per_class_table",
+    "score_instances",
+    "semantic_metrics",
+    "zero_shot_labels",
+]

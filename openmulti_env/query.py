@@ -1,0 +1,229 @@
+"""``openmulti query --run DIR "TEXT"``: open-vocabulary instance retrieval on a finished run.
+
+A run directory holds ``metrics.json`` (its ``config``), ``meshes/agent_K.ply`` (scene meshes whose
+vertices carry instance ids) and ``codebook/agent_K.json/.npz``; after cross-agent alignment also
+``codebook/team.json/.npz``, whose global ids the agents' meshes then share. The team code book is
+preferred when present. Every instance is scored (``mapping.evaluate.retrieval.score_instances``), the
+top K are printed as JSON, and ``DIR/plots/query_<slug>.png`` shows the map from above with the best
+instance highlighted.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import sys
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import trimesh
+
+from mapping.evaluate.meshing import load_scene_mesh
+from mapping.evaluate.retrieval import RetrievalHit, score_instances
+from mapping.evaluate.semantic import zero_shot_labels
+from mapping.perception.codebook import CodeBook, CodeBookError
+from openmulti_env.world.furniture import CATEGORIES
+from openmulti_env.world.scene import STRUCTURE_CATEGORIES
+
+__all__ = ["QueryResult", "load_run_codebooks", "query_slug", "run_query"]
+
+TEAM = "team"
+"""Name of the aligned, team-wide code book (and the ``agent`` of its hits)."""
+
+VOCABULARY = tuple(CATEGORIES) + tuple(STRUCTURE_CATEGORIES)
+"""Categories for zero-shot labels of instances whose code book has none (the simulator's 34)."""
+
+MAX_PLOT_POINTS = 150_000
+"""Background points drawn at most (a random subset beyond that keeps the scatter fast)."""
+
+PLOT_POINTS_PER_MESH = 60_000
+"""Surface samples added to each agent mesh's vertices for the picture."""
+
+
+@dataclass
+class QueryResult:
+    """What ``run_query`` found: the JSON printed and the picture written (None without meshes)."""
+
+    payload: dict
+    plot: Path | None
+
+
+def query_slug(text: str, max_len: int = 60) -> str:
+    """File-name-safe form of a query: lowercase words joined by ``_`` ("Somewhere to sleep?" -> "somewhere_to_sleep")."""
+    slug = re.sub(r"[^a-z0-9]+", "_", text.lower()).strip("_")[:max_len].rstrip("_")
+    return slug or "query"
+
+
+def load_run_codebooks(run_dir: Path) -> dict[str, CodeBook]:
+    """``{"team": book}`` when ``codebook/team.*`` exists, else ``{"agent_K": book}`` for every agent.
+
+    Raises:
+        FileNotFoundError: the run directory does not exist.
+        CodeBookError: there is no code book, or one is corrupt.
+    """
+    run_dir = Path(run_dir)
+    if not run_dir.is_dir():
+        raise FileNotFoundError(f"run directory not found: {run_dir}")
+    folder = run_dir / "codebook"
+    if (folder / f"{TEAM}.json").is_file():
+        return {TEAM: CodeBook.load(folder, TEAM)}
+    names = sorted((p.stem for p in folder.glob("agent_*.json")), key=_agent_index)
+    if not names:
+        raise CodeBookError(f"no code book in {folder} (expected agent_K.json + agent_K.npz, or team.json + "
+                            "team.npz): was the run made with the perception front end?")
+    return {name: CodeBook.load(folder, name) for name in names}
+
+
+def _agent_index(name: str) -> int:
+    tail = name.rsplit("_", 1)[-1]
+    return int(tail) if tail.isdigit() else 1 << 30
+
+
+def _load_meshes(run_dir: Path, points_per_mesh: int = PLOT_POINTS_PER_MESH) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """agent name -> (points (n, 3) float64, instance ids (n,) int) of ``meshes/agent_K.ply``.
+
+    The points are the vertices plus area-uniform samples on the faces (each sample takes the id of
+    its face's first vertex), so low-poly meshes still draw as filled shapes.
+    """
+    out = {}
+    for path in sorted((run_dir / "meshes").glob("agent_*.ply"), key=lambda p: _agent_index(p.stem)):
+        mesh, ids = load_scene_mesh(path)
+        verts, ids = np.asarray(mesh.vertices, np.float64), np.asarray(ids)
+        if len(mesh.faces) and mesh.area > 0:
+            samples, face = trimesh.sample.sample_surface(mesh, points_per_mesh, seed=0)
+            verts = np.concatenate([verts, samples])
+            ids = np.concatenate([ids, ids[np.asarray(mesh.faces)[face, 0]]])
+        out[path.stem] = (verts, ids)
+    return out
+
+
+def _image_encoder(checkpoint: str | None):
+    """The image-text encoder for ``checkpoint`` (None without one; the loader says so once)."""
+    try:
+        from mapping.perception.image_encoder import ImageEncoderError, load_image_encoder  # noqa: PLC0415
+    except ImportError:
+        if checkpoint:
+            raise ValueError("--clip-checkpoint given but this install has no image-text encoder module") from None
+        print("openmulti query: no image-text encoder: caption term only", file=sys.stderr)
+        return None
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("always")
+            warnings.showwarning = _warning_to_stderr
+            return load_image_encoder(checkpoint)
+    except ImageEncoderError as exc:
+        raise ValueError(str(exc)) from exc
+
+
+def _warning_to_stderr(message, category, filename, lineno, file=None, line=None) -> None:
+    print(f"openmulti query: {message}", file=sys.stderr)
+
+
+def run_query(run_dir: str | Path, text: str, top_k: int = 5, clip_checkpoint: str | None = None,
+              text_encoder=None) -> QueryResult:
+    """Score every instance of a run against ``text``; write the picture; return the JSON payload.
+
+    Args:
+        run_dir: the run directory (see the module docstring).
+        text: the query, not blank.
+        top_k: how many hits to report (>= 1).
+        clip_checkpoint: optional local image-text checkpoint (visual term weight 0.8 when loaded).
+        text_encoder: ``encode(texts) -> (n, 384)``; defaults to the shared SBERT encoder.
+
+    Raises:
+        ValueError: blank text, bad ``top_k``, or a missing / corrupt code book (CodeBookError).
+        FileNotFoundError: no such run directory.
+    """
+    if not isinstance(text, str) or not text.strip():
+        raise ValueError("the query text is empty: give what to look for, e.g. \"somewhere to sleep\"")
+    if top_k < 1:
+        raise ValueError(f"--top must be at least 1, got {top_k}")
+    run_dir = Path(run_dir)
+    books = load_run_codebooks(run_dir)
+    if text_encoder is None:
+        from mapping.perception.text_encoder import shared_text_encoder  # noqa: PLC0415
+
+        text_encoder = shared_text_encoder()
+    image_encoder = _image_encoder(clip_checkpoint)
+
+    hits: list[tuple[str, RetrievalHit]] = []
+    labels_by_agent = {}
+    for agent, book in books.items():
+        zero_shot = zero_shot_labels(book, VOCABULARY, text_encoder, image_encoder)
+        labels = {i: book[i].label or zero_shot[i] for i in book}
+        labels_by_agent[agent] = labels
+        hits += [(agent, h) for h in score_instances(text, book, text_encoder, image_encoder, labels=labels)]
+    hits.sort(key=lambda ah: (-ah[1].score, _agent_index(ah[0]), ah[1].instance_id))
+
+    meshes = _load_meshes(run_dir)
+    results = [{"id": h.instance_id, "agent": agent, "category": h.label, "caption": h.caption,
+                "score": round(h.score, 4), "terms": list(h.terms)} for agent, h in hits[:top_k]]
+    if books.keys() == {TEAM}:
+        for r in results:  # which agents' meshes hold this global id
+            r["seen_by"] = [a for a, (_, ids) in meshes.items() if np.any(ids == r["id"])]
+    payload = {"query": text, "run": str(run_dir), "scene": _scene_name(run_dir), "results": results}
+
+    plot = None
+    if hits and meshes:
+        plot = _plot_query(run_dir / "plots" / f"query_{query_slug(text)}.png", text, hits[0], meshes,
+                           labels_by_agent, [agent_hit for agent_hit in hits[1:top_k]])
+    payload["plot"] = None if plot is None else str(plot)
+    return QueryResult(payload, plot)
+
+
+def _scene_name(run_dir: Path) -> str | None:
+    try:
+        return json.loads((run_dir / "metrics.json").read_text())["config"]["scene"]
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+
+
+def _plot_query(path: Path, text: str, best: tuple[str, RetrievalHit], meshes: dict,
+                labels_by_agent: dict, runners_up: list[tuple[str, RetrievalHit]]) -> Path:
+    """Top-down scatter of the meshes' points (grey shades by height, ceiling left out), the best
+    instance in red, the runners-up's ranks written at their centres."""
+    import matplotlib  # noqa: PLC0415
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt  # noqa: PLC0415
+
+    def points_of(agent: str, instance_id: int) -> np.ndarray:
+        sources = meshes.values() if agent == TEAM else [meshes[agent]] if agent in meshes else []
+        return np.concatenate([v[ids == instance_id] for v, ids in sources] or [np.zeros((0, 3))])
+
+    team_labels = labels_by_agent.get(TEAM)
+    background = []
+    for agent, (verts, ids) in meshes.items():
+        labels = team_labels if team_labels is not None else labels_by_agent.get(agent, {})
+        ceiling = [i for i, label in labels.items() if label == "ceiling"]
+        background.append(verts[~np.isin(ids, ceiling)])
+    background = np.concatenate(background)
+    if len(background) > MAX_PLOT_POINTS:
+        background = background[np.random.default_rng(0).choice(len(background), MAX_PLOT_POINTS, replace=False)]
+    background = background[np.argsort(background[:, 2], kind="stable")]  # higher surfaces drawn on top
+
+    fig, ax = plt.subplots(figsize=(7, 6))
+    sc = ax.scatter(background[:, 0], background[:, 1], c=background[:, 2], cmap="Greys", s=0.5,
+                    vmin=background[:, 2].min() - 0.5 if len(background) else 0, linewidths=0, rasterized=True)
+    fig.colorbar(sc, ax=ax, label="height z [m]", shrink=0.8)
+    for rank, (agent, hit) in enumerate(runners_up, start=2):  # rank numbers at their centres
+        pts = points_of(agent, hit.instance_id)
+        if len(pts):
+            ax.annotate(str(rank), pts[:, :2].mean(axis=0), color="darkorange", fontsize=11, weight="bold",
+                        ha="center", va="center")
+    agent, hit = best
+    pts = points_of(agent, hit.instance_id)
+    ax.scatter(pts[:, 0], pts[:, 1], s=3, color="red", linewidths=0,
+               label=f"best: {hit.label or '?'} ({agent} id {hit.instance_id}, score {hit.score:.2f})")
+    ax.set_aspect("equal")
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.legend(loc="upper right", fontsize=8, markerscale=3)
+    ax.set_title(f"query: {text!r}\nbest: {hit.caption!r}" + (" (orange numbers: ranks 2+)" if runners_up else ""), fontsize=10)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
