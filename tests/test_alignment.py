@@ -339,3 +339,30 @@ def test_bad_options_and_inputs_are_named():
         align_agents(nan_conf)
     with pytest.raises(ValueError, match="unknown agents"):
         align_agents({"agent_0": fusion(instance(1, np.zeros((2, 3))))}, segmentations={"agent_7": []})
+
+
+# ------------------------------------------------------------------------------- partial-view edge
+def wall_strip(x0, x1, spacing=0.01):
+    """Points on a vertical wall (plane y = 0) from x0 to x1, 2 m high."""
+    xs, zs = np.meshgrid(np.arange(x0, x1, spacing), np.arange(0.0, 2.0, spacing))
+    return np.c_[xs.ravel(), np.zeros(xs.size), zs.ravel()]
+
+
+def test_partial_views_sharing_a_strip_join_when_their_captions_agree():
+    """Two agents see two halves of one wall that overlap by a 0.3 m strip (IoB 0.1): the paper's
+    thresholds alone keep them apart; the semantic partial-view edge joins them, but only when the
+    captions agree, and never for a wall and the floor that meet along a line."""
+    left = instance(1, wall_strip(0.0, 3.0), "a white wall", 0.4, source=(3,))
+    right = instance(1, wall_strip(2.7, 5.7), "a white wall", 0.3, source=(3,))
+    xs, ys = np.meshgrid(np.arange(0.0, 5.0, 0.01), np.arange(0.0, 3.0, 0.01))
+    floor = instance(2, np.c_[xs.ravel(), ys.ravel(), np.zeros(xs.size)], "the floor", 0.3, source=(1,))
+    fused = {"agent_0": fusion(left), "agent_1": fusion(right, floor)}
+    paper_only = align_agents(fused, config=AlignmentConfig(partial_iob_threshold=1.0))
+    assert paper_only.agents["agent_0"].local_to_global[1] != paper_only.agents["agent_1"].local_to_global[1]
+    result = align_agents(fused)
+    a0, a1 = result.agents["agent_0"].local_to_global, result.agents["agent_1"].local_to_global
+    assert a0[1] == a1[1] and a1[2] != a1[1]
+    assert id_consistency(result, fused) == 1.0
+    other = {"agent_0": fusion(left), "agent_1": fusion(instance(1, right.points, "a wooden door", 0.3, source=(3,)))}
+    split_meaning = align_agents(other)
+    assert split_meaning.agents["agent_0"].local_to_global[1] != split_meaning.agents["agent_1"].local_to_global[1]

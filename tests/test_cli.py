@@ -33,15 +33,15 @@ def test_run_writes_world_results_and_says_what_it_ran(capsys, tmp_path):
     assert not (out / "metrics.json").exists()  # no mapper yet: no pretend metrics
 
 
-def test_bad_input_gives_clear_errors(capsys):
+def test_bad_input_gives_clear_errors(capsys, tmp_path):
     assert main(["run", "--scene", "kitchen9", "--preset", "tiny"]) == 2
     assert "unknown scene 'kitchen9'" in capsys.readouterr().err
     assert main(["run", "--scene", "tiny", "--policy", "sometimes"]) == 2
     assert "unknown policy" in capsys.readouterr().err
     assert main(["run", "--scene", "tiny", "--policy", "bernoulli:1.5"]) == 2
     assert "[0, 1]" in capsys.readouterr().err
-    assert main(["query", "x"]) == 2
-    assert "not available yet" in capsys.readouterr().err
+    assert main(["query", "--run", str(tmp_path / "missing"), "the bed"]) == 2
+    assert "missing" in capsys.readouterr().err
 
 
 def test_mapping_run_writes_metrics_and_resumes(capsys, tmp_path):

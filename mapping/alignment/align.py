@@ -50,6 +50,12 @@ class AlignmentConfig:
     """A remainder piece needs at least this share of the split cloud (else it joins the nearest)."""
     max_split_rounds: int = 3
     """Split, re-measure and split again at most this often (nested under-segmentation)."""
+    partial_iob_threshold: float = 0.08
+    """Partial-view edge (graph.py): IoB in either direction >= this, with ... (1.0 = the paper's graph only)"""
+    partial_similarity: float = 0.6
+    """... caption cosine >= this ..."""
+    partial_min_points: int = 30
+    """... and at least this many overlapping points."""
 
     def __post_init__(self) -> None:
         if not self.voxel_size_m > 0 or self.overlap_radius_m < 0 or self.split_radius_m < 0:
@@ -157,8 +163,9 @@ def align_agents(fused: dict[str, FusionResult], frames: dict[str, Sequence[Fram
     bytes_per_link = {(a, b): payload[a] + payload[b] for a, b in links}
     bytes_sent = {a: sum(payload[a] for link in links if a in link) for a in names}
 
-    graph = InstanceCollaborativeGraph(config.overlap_radius_m, config.iou_threshold, config.iob_threshold, links)
-    graph.add_instances(clouds, confidence)
+    graph = InstanceCollaborativeGraph(config.overlap_radius_m, config.iou_threshold, config.iob_threshold, links,
+                                       config.partial_iob_threshold, config.partial_similarity, config.partial_min_points)
+    graph.add_instances(clouds, confidence, {n: inst.caption_feature for n, inst in instances.items()})
     piece_cloud = _split_under_segmented(graph, config)  # pieces of split instances -> pixel clouds
 
     clusters = graph.clusters()
@@ -243,7 +250,7 @@ def _split_under_segmented(graph: InstanceCollaborativeGraph, config: AlignmentC
         decisions = find_under_segmented(graph, config.split_iob_threshold, config.split_share_threshold)
         if not decisions:
             break
-        new_clouds, new_conf = {}, {}
+        new_clouds, new_conf, new_feat = {}, {}, {}
         for d in decisions:
             points = graph.cloud(d.node)
             refs = [graph.cloud(r) for r in d.references]
@@ -254,11 +261,14 @@ def _split_under_segmented(graph: InstanceCollaborativeGraph, config: AlignmentC
                 next_part[key] += 1
                 own = points[labels == k]
                 new_clouds[part], new_conf[part] = own, graph.confidence(d.node)
+                feature = graph.feature(d.references[k]) if k < len(refs) else graph.feature(d.node)
+                if feature is not None:  # a piece means what its reference means
+                    new_feat[part] = feature
                 piece_cloud[part] = own if k == len(refs) else np.concatenate([own, refs[k]])
         for d in decisions:
             graph.remove(d.node)
             piece_cloud.pop(d.node, None)
-        graph.add_instances(new_clouds, new_conf)
+        graph.add_instances(new_clouds, new_conf, new_feat)
     return piece_cloud
 
 

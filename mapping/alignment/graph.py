@@ -6,6 +6,14 @@ direction, >= ``iob_threshold``. The IoB edge is what joins a partial view (view
 (over-segmentation) to the whole object. Connected components are the clusters, each led by its most
 confident member (the reference).
 
+One addition to the paper, for partial views that share only a strip: agents that map different parts
+of a room see different parts of the same wall, floor or large object, so both IoU and IoB stay small
+(0.05-0.3 in the simulator) although the clouds continue each other. Such a pair is joined when it
+shares at least ``partial_min_points`` overlapping points, IoB in either direction reaches
+``partial_iob_threshold`` AND the caption features agree (cosine >= ``partial_similarity``). Touching
+but different objects overlap along a contact line only (IoB of a few %), and two different objects
+of one kind rarely share a strip; a semantic error blocks only this weaker edge, never the paper's.
+
 A vertex is a ``Node`` = (agent, local_id, part): part 0 is a whole local instance; parts 1, 2, ...
 are the pieces an under-segmented instance was split into (see ``corrections``), so the graph can
 replace a vertex by its pieces and cluster again.
@@ -48,10 +56,14 @@ class InstanceCollaborativeGraph:
         iou_threshold: edge when IoU >= this.
         iob_threshold: edge when IoB in either direction >= this.
         links: agent pairs that exchanged clouds; None = every pair of agents is linked.
+        partial_iob_threshold: IoB of the semantic partial-view edge (module docstring); 1 disables it.
+        partial_similarity: caption cosine the partial-view edge needs.
+        partial_min_points: overlapping points the partial-view edge needs.
     """
 
     def __init__(self, radius_m: float, iou_threshold: float, iob_threshold: float,
-                 links: Iterable[tuple[str, str]] | None = None):
+                 links: Iterable[tuple[str, str]] | None = None, partial_iob_threshold: float = 1.0,
+                 partial_similarity: float = 0.6, partial_min_points: int = 30):
         for name, value in (("iou_threshold", iou_threshold), ("iob_threshold", iob_threshold)):
             if not 0.0 < value <= 1.0:
                 raise ValueError(f"{name} must be in (0, 1], got {value}")
@@ -61,6 +73,10 @@ class InstanceCollaborativeGraph:
         self.iou_threshold = iou_threshold
         self.iob_threshold = iob_threshold
         self.links = None if links is None else {frozenset(link) for link in links}
+        self.partial_iob_threshold = partial_iob_threshold
+        self.partial_similarity = partial_similarity
+        self.partial_min_points = partial_min_points
+        self._feature: dict[Node, np.ndarray] = {}
         self.graph = nx.Graph()
         self._clouds: dict[Node, np.ndarray] = {}
         self._confidence: dict[Node, float] = {}
@@ -74,13 +90,17 @@ class InstanceCollaborativeGraph:
             return False
         return self.links is None or frozenset((agent_a, agent_b)) in self.links
 
-    def add_instances(self, clouds: dict[Node, np.ndarray], confidence: dict[Node, float]) -> None:
+    def add_instances(self, clouds: dict[Node, np.ndarray], confidence: dict[Node, float],
+                      features: dict[Node, np.ndarray] | None = None) -> None:
         """Add vertices, measure their overlap with every linked vertex, and add the edges they earn.
 
         Args:
             clouds: node -> (n, 3) float64 down-sampled world points.
             confidence: node -> eq. 1-2 confidence, for every node in ``clouds``.
+            features: node -> (d,) unit caption feature; nodes without one never get the partial edge.
         """
+        for node, feature in (features or {}).items():
+            self._feature[node] = np.asarray(feature, np.float64).reshape(-1)
         for node, cloud in clouds.items():
             if node in self._clouds:
                 raise ValueError(f"node {node} is already in the graph")
@@ -110,6 +130,7 @@ class InstanceCollaborativeGraph:
             self._count.pop((other, node), None)
         self.graph.remove_node(node)
         del self._clouds[node], self._confidence[node]
+        self._feature.pop(node, None)
 
     def _measure(self, nodes_a: list[Node], nodes_b: list[Node]) -> None:
         if not nodes_a or not nodes_b:
@@ -121,8 +142,12 @@ class InstanceCollaborativeGraph:
             self._count[(u, v)], self._count[(v, u)] = int(n_ab[i, j]), int(n_ba[i, j])
             self._overlapping[u].add(v)
             self._overlapping[v].add(u)
-            if self.iou(u, v) >= self.iou_threshold or max(self.iob(u, v), self.iob(v, u)) >= self.iob_threshold:
-                self.graph.add_edge(u, v, iou=self.iou(u, v))
+            iob = max(self.iob(u, v), self.iob(v, u))
+            if self.iou(u, v) >= self.iou_threshold or iob >= self.iob_threshold:
+                self.graph.add_edge(u, v, iou=self.iou(u, v), kind="overlap")
+            elif iob >= self.partial_iob_threshold and min(n_ab[i, j], n_ba[i, j]) >= self.partial_min_points \
+                    and self.similarity(u, v) >= self.partial_similarity:
+                self.graph.add_edge(u, v, iou=self.iou(u, v), kind="partial")
 
     # ------------------------------------------------------------------------------------ queries
     @property
@@ -141,6 +166,17 @@ class InstanceCollaborativeGraph:
     def overlapping(self, node: Node) -> list[Node]:
         """Vertices of linked agents that share at least one overlapping point with ``node``, sorted."""
         return sorted(self._overlapping.get(node, ()))
+
+    def feature(self, node: Node) -> np.ndarray | None:
+        """(d,) caption feature of a vertex, or None."""
+        return self._feature.get(node)
+
+    def similarity(self, u: Node, v: Node) -> float:
+        """Cosine of the two vertices' caption features (-1 when either has none)."""
+        a, b = self._feature.get(u), self._feature.get(v)
+        if a is None or b is None or a.shape != b.shape:
+            return -1.0
+        return float(a @ b / max(np.linalg.norm(a) * np.linalg.norm(b), 1e-12))
 
     def iob(self, u: Node, v: Node) -> float:
         """Eq. 4, IoB of u into v: share of u's points that overlap v (0 when not measured)."""
