@@ -47,10 +47,11 @@ class FusionConfig:
     """Points per mask projected into other frames for the 2D box term."""
     border_margin: float = 0.1
     """Border band of eq. 1's central region, as a share of the image width / height."""
-    max_points: int = 20000
-    """Cap on an instance's points (a seeded choice beyond it)."""
+    max_points: int = 100_000
+    """Cap on an instance's points: beyond it the voxel grows until the cloud fits (uniform density:
+    a random subset would thin large surfaces unevenly and break the alignment's overlap test)."""
     seed: int = 0
-    """Seed of Louvain and of the point cap."""
+    """Seed of Louvain."""
 
     def __post_init__(self) -> None:
         for name in ("pixel_stride", "colour_bins", "projection_points", "max_points"):
@@ -183,7 +184,7 @@ def observe_masks(frames: Sequence[Frame], segmentations: Sequence[FrameSegmenta
 
 
 def _fused_instance(masks: MaskSet, members: list[int], local_id: int, confidence: float,
-                    cfg: FusionConfig, rng: np.random.Generator) -> AgentInstance:
+                    cfg: FusionConfig) -> AgentInstance:
     """One fused instance from its masks (step 5 of the fusion)."""
     area = masks.pixels[members].astype(np.float64)
     votes: dict[str, float] = defaultdict(float)
@@ -197,8 +198,10 @@ def _fused_instance(masks: MaskSet, members: list[int], local_id: int, confidenc
         weights = masks.pixels[with_vis].astype(np.float64)
         visual = unit_rows(weights @ masks.visual_features[with_vis]).astype(np.float32)
     points = voxel_downsample(np.concatenate([masks.points[m] for m in members]), cfg.voxel_size_m)
-    if len(points) > cfg.max_points:
-        points = points[np.sort(rng.choice(len(points), cfg.max_points, replace=False))]
+    voxel = cfg.voxel_size_m
+    while len(points) > cfg.max_points:  # coarser voxels keep the density uniform (overlap tests need that)
+        voxel *= max(1.1, float(np.sqrt(len(points) / cfg.max_points)))
+        points = voxel_downsample(points, voxel)
     colour = area @ masks.colours[members] / area.sum()
     # Segment.source_ids gives order, not counts: credit pixels / (rank + 1) (diagnostics only)
     credit: dict[int, float] = defaultdict(float)
@@ -240,7 +243,6 @@ def fuse_frames(frames: Sequence[Frame], segmentations: Sequence[FrameSegmentati
                 lut[s.segment_id] = assignment.get((seg.frame_index, s.segment_id), 0)
         for local, c in label_confidences(lut[seg.labels], cfg.border_margin).items():
             per_frame[local].append(c)
-    rng = np.random.default_rng(cfg.seed)
-    instances = {local: _fused_instance(masks, g, local, instance_confidence(per_frame[local], len(frames)), cfg, rng)
+    instances = {local: _fused_instance(masks, g, local, instance_confidence(per_frame[local], len(frames)), cfg)
                  for local, g in enumerate(groups, start=1)}
     return FusionResult(instances, assignment)
