@@ -56,10 +56,18 @@ def test_mapping_run_writes_metrics_and_resumes(capsys, tmp_path):
     for m in list(metrics["agents"].values()) + [metrics["mean"]]:
         assert {"acc_cm", "comp_cm", "comp_ratio", "f_miou", "f_macc"} <= set(m)
         assert 0.0 < m["comp_ratio"] <= 100.0 and m["acc_cm"] > 0
+        assert 0.0 < m["f_miou"] <= 100.0 and 0.0 < m["f_macc"] <= 100.0
+    assert 0.0 < metrics["team"]["f_miou"] <= 100.0 and metrics["team"]["per_class"]
     assert metrics["bytes_sent_total"] == 0 and metrics["wall_s"] > 0
     assert metrics["config"]["policy"] == "never"
     assert (out / "meshes" / "agent_0.ply").exists() and (out / "plots" / "reconstruction_top_down.png").exists()
     assert (out / "plots" / "rendered_views_agent_1.png").stat().st_size > 10_000
+    assert (out / "plots" / "semantic_per_class.png").exists() and (out / "codebook" / "agent_1.json").exists()
+    # the run's code books answer open-vocabulary queries
+    assert main(["query", "--run", str(out), "the floor", "--top", "2"]) == 0
+    printed = capsys.readouterr().out
+    hits = json.loads(printed[printed.index("{"):])
+    assert hits["results"][0]["category"] == "floor"
     # a second run in the same directory reloads the finished maps instead of mapping again
     assert main(args) == 0
     assert capsys.readouterr().out.count("resumed its finished map") == 2

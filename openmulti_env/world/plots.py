@@ -145,3 +145,21 @@ def save_view_comparison(path: str | Path, views: list, stride: int, title: str 
     for ax, name in zip(axes[0], ("sensor RGB", "map colour", "sensor depth", "map depth")):
         ax.set_title(name)
     return _save_figure(fig, path, title)
+
+
+def save_semantic_classes(path: str | Path, metrics, title: str, top: int = 20) -> Path:
+    """Bar chart of per-class IoU and accuracy (the ``top`` most frequent classes), F-mIoU in the title.
+
+    ``metrics`` is a ``mapping.evaluate.semantic.SemanticMetrics``.
+    """
+    rows = metrics.per_class[:top]
+    fig, ax = plt.subplots(figsize=(max(6.0, 0.45 * len(rows) + 2), 4))
+    x = np.arange(len(rows))
+    ax.bar(x - 0.2, [100 * r.iou for r in rows], 0.4, label="IoU")
+    ax.bar(x + 0.2, [100 * r.acc for r in rows], 0.4, label="accuracy")
+    ax.set_xticks(x, [f"{r.class_name}\n{100 * r.frequency:.0f}%" for r in rows], rotation=60, fontsize=7)
+    ax.set_ylabel("%")
+    ax.set_ylim(0, 100)
+    ax.legend(loc="upper right")
+    return _save_figure(fig, path, f"{title}\nF-mIoU {metrics.f_miou:.1f}, F-mAcc {metrics.f_macc:.1f} "
+                                   "(class: share of ground-truth points)")
