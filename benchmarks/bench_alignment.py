@@ -22,6 +22,7 @@ from __future__ import annotations
 import argparse
 import os
 import time
+from dataclasses import asdict, replace
 from pathlib import Path
 
 import numpy as np
@@ -29,6 +30,7 @@ import torch
 
 from mapping.alignment import id_consistency
 from mapping.perception import shared_text_encoder
+from mapping.perception.errors import SegmentationErrorConfig
 from openmulti_env.presets import world_config
 from openmulti_env.results import write_json_atomic
 from openmulti_env.team_perception import (ALIGNMENT_MODES, FrontEndConfig, align_team, category_vocabulary,
@@ -38,11 +40,11 @@ from openmulti_env.world import World
 PRESETS = ("room0", "room1", "room2", "office0", "office1", "office2", "office3", "office4")
 
 
-def bench_scene(scene: str, seed: int, preset: str, encoder) -> dict:
+def bench_scene(scene: str, seed: int, preset: str, encoder, errors: SegmentationErrorConfig) -> dict:
     t0 = time.perf_counter()
     world = World.build(scene, seed=seed, config=world_config(preset, 4))
     t_world = time.perf_counter() - t0
-    config = FrontEndConfig()
+    config = FrontEndConfig(errors=errors)
     t0 = time.perf_counter()
     perception = perceive_team(world, seed, config, encoder, progress=False)
     t_front = time.perf_counter() - t0
@@ -100,10 +102,16 @@ def main() -> None:
     parser.add_argument("--preset", default="fast")
     parser.add_argument("--threads", type=int, default=os.cpu_count() or 1)
     parser.add_argument("--out", default="runs/bench_alignment")
+    parser.add_argument("--semantic-rate", type=float, default=None, help="override the default semantic error rate")
+    parser.add_argument("--structure-errors", action="store_true",
+                        help="let semantic errors and drops reach walls, floor and ceiling (off by default)")
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
     encoder = shared_text_encoder()
     errors = FrontEndConfig().errors
+    if args.semantic_rate is not None or args.structure_errors:
+        errors = replace(errors, semantic_rate=errors.semantic_rate if args.semantic_rate is None else args.semantic_rate,
+                         structure_errors=args.structure_errors)
     print(f"error rates per agent: semantic {errors.semantic_rate:.0%}, over-segmentation "
           f"{errors.over_segmentation_rate:.0%}, under-segmentation {errors.under_segmentation_rate:.0%}, "
           f"mask drop {errors.mask_drop_rate:.0%}; 4 agents, preset {args.preset}, seed {args.seed}")
@@ -113,14 +121,15 @@ def main() -> None:
               f"{'agent F-mIoU':>20} | {'MB sent':>7} | {'front s':>7} {'align s':>7}")
     print(header)
     for scene in args.scenes:
-        r = bench_scene(scene, args.seed, args.preset, encoder)
+        r = bench_scene(scene, args.seed, args.preset, encoder, errors)
         rows.append(r)
         n, p, o = (r[m] for m in ALIGNMENT_MODES)
         print(f"{scene:<8} | {n['id_consistency']:>10.1f} {p['id_consistency']:>10.1f} {o['id_consistency']:>10.1f}"
               f"   | {n['team_f_miou']:>9.1f} {p['team_f_miou']:>9.1f} {o['team_f_miou']:>9.1f}  "
               f"| {n['agent_f_miou_mean']:>6.1f} {p['agent_f_miou_mean']:>6.1f} {o['agent_f_miou_mean']:>6.1f} "
               f"| {p['bytes_sent_total'] / 1e6:>7.2f} | {r['front_end_s']:>7.1f} {p['align_s']:>7.1f}", flush=True)
-        write_json_atomic(out / "results.json", {"rows": rows, "seed": args.seed, "preset": args.preset})
+        write_json_atomic(out / "results.json", {"rows": rows, "seed": args.seed, "preset": args.preset,
+                                                 "errors": asdict(errors)})
     mean = {m: {k: float(np.mean([r[m][k] for r in rows])) for k in ("id_consistency", "team_f_miou", "agent_f_miou_mean")}
             for m in ALIGNMENT_MODES}
     print("mean     | " + "  ".join(f"{m}: consistency {mean[m]['id_consistency']:.1f}, team F-mIoU "
@@ -130,7 +139,8 @@ def main() -> None:
     print(f"targets: paper consistency >= 95 % on every scene: "
           f"{'met' if all(r['paper']['id_consistency'] >= 95 for r in rows) else 'MISSED'}; "
           f"team F-mIoU gain over none >= 5 points: min {min(gain):.1f}, mean {np.mean(gain):.1f}")
-    write_json_atomic(out / "results.json", {"rows": rows, "mean": mean, "seed": args.seed, "preset": args.preset})
+    write_json_atomic(out / "results.json", {"rows": rows, "mean": mean, "seed": args.seed, "preset": args.preset,
+                                             "errors": asdict(errors)})
     save_plot(rows, out / "alignment.png")
     print(f"wrote {out / 'results.json'} and {out / 'alignment.png'}")
 

@@ -153,6 +153,25 @@ def test_semantic_error_describes_a_confusable_category_and_spares_structure():
     assert captions[WALL] == "wall"
 
 
+def test_semantic_errors_hit_truncated_views_only_by_default():
+    """A confused chair is captioned right when the whole mask lies in the central region (eq. 1 = 1)
+    and wrong when it reaches the border band; with the option off it is wrong in both views."""
+    central = np.full((H, W), WALL, np.int32)
+    central[15:40, 20:45] = CHAIR
+    truncated = instance_image()  # the chair's mask reaches the top border band
+    rates = dict(semantic_rate=1.0, over_segmentation_rate=0, under_segmentation_rate=0, mask_drop_rate=0)
+
+    def chair_caption(errors, inst):
+        seg = oracle(errors).segment(make_frame(inst=inst))
+        return next(s.caption.split("|")[0] for s in seg.segments if s.source_ids == (CHAIR,))
+
+    default = SegmentationErrorConfig(**rates)
+    assert chair_caption(default, central) == "chair"
+    assert chair_caption(default, truncated) in CONFUSABLE["chair"]
+    always = SegmentationErrorConfig(**rates, semantic_errors_in_partial_views=False)
+    assert chair_caption(always, central) in CONFUSABLE["chair"]
+
+
 def test_mask_drop_removes_visible_objects_but_not_structure():
     errors = SegmentationErrorConfig(0, 0, 0, mask_drop_rate=1.0)
     seg = oracle(errors).segment(make_frame())

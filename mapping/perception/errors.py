@@ -42,6 +42,13 @@ class SegmentationErrorConfig:
     """Masks with fewer pixels are dropped (OpenObj's threshold)."""
     structure_errors: bool = False
     """Also give walls, floor and ceiling semantic errors and drops (never over/under)."""
+    semantic_errors_in_partial_views: bool = True
+    """A confused instance is mis-captioned only in the views that show it truncated: its mask reaches
+    the image's border band (eq. 1 below 1). A view with the whole mask in the central region gets the
+    right caption. Captioners fail on partial views, and this is why the paper trusts the instance with
+    the highest confidence as the reference; False = wrong in every view."""
+    central_margin: float = 0.1
+    """Border band, as a share of width / height, that makes a view partial (eq. 1's central region)."""
 
     def __post_init__(self) -> None:
         for name in ("semantic_rate", "over_segmentation_rate", "under_segmentation_rate", "mask_drop_rate"):

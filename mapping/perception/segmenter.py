@@ -11,6 +11,7 @@ from __future__ import annotations
 from typing import Mapping, Protocol, Sequence
 
 import numpy as np
+from scipy import ndimage
 
 from mapping.data.frame import Frame
 from mapping.perception.captioner import UNKNOWN_CAPTION, Captioner, TemplateCaptioner
@@ -59,6 +60,18 @@ def _assemble(candidates: np.ndarray, specs: list, min_pixels: int) -> tuple[np.
     lut = np.zeros(len(specs) + 1, np.int32)
     lut[keep] = np.arange(1, len(keep) + 1, dtype=np.int32)
     return lut[candidates], [(specs[c - 1], int(counts[c])) for c in keep]
+
+
+def _inside_central_region(labels: np.ndarray, count: int, margin: float) -> np.ndarray:
+    """(count,) bool: whether mask k + 1 lies wholly inside the image minus a ``margin`` border band."""
+    h, w = labels.shape
+    top, bottom, left, right = margin * h, (1.0 - margin) * h, margin * w, (1.0 - margin) * w
+    out = np.zeros(count, bool)
+    for k, box in enumerate(ndimage.find_objects(labels, max_label=count)):
+        if box is not None:
+            rows, cols = box
+            out[k] = rows.start >= top and rows.stop <= bottom and cols.start >= left and cols.stop <= right
+    return out
 
 
 class OracleSegmenter:
@@ -125,12 +138,15 @@ class OracleSegmenter:
         for iid, first in over:
             candidates = self._split(frame, inst, iid, candidates, first)
         labels, kept = _assemble(candidates, specs, self.errors.min_mask_pixels)
+        central = _inside_central_region(labels, len(kept), self.errors.central_margin)
         segments = []
         for k, ((members, piece), n_pixels) in enumerate(kept, start=1):
             source = tuple(sorted(members, key=lambda m: (-pixels[m], m)))
             main = self.infos[source[0]]
-            caption = self.captioner.caption(main, self.agent, frame.index,
-                                             self.plan.wrong_category.get(main.instance_id), piece)
+            wrong = self.plan.wrong_category.get(main.instance_id)
+            if wrong is not None and self.errors.semantic_errors_in_partial_views and central[k - 1]:
+                wrong = None  # seen whole: even a confusable instance is captioned right
+            caption = self.captioner.caption(main, self.agent, frame.index, wrong, piece)
             segments.append(Segment(k, caption, n_pixels, source_ids=source))
         return FrameSegmentation(frame.index, labels, segments)
 
