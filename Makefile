@@ -7,6 +7,7 @@ SCENE ?= room0
 PRESET ?= fast
 OUT ?= runs/demo
 POLICY ?= never
+ALIGNMENT ?= paper
 
 .PHONY: setup demo test bench clean
 
@@ -14,7 +15,7 @@ setup:
 	@bash scripts/setup.sh
 
 demo: setup
-	$(VENV)/bin/openmulti run --scene $(SCENE) --agents $(AGENTS) --policy $(POLICY) --preset $(PRESET) --out $(OUT)
+	$(VENV)/bin/openmulti run --scene $(SCENE) --agents $(AGENTS) --policy $(POLICY) --alignment $(ALIGNMENT) --preset $(PRESET) --out $(OUT)
 
 test: setup
 	$(PY) -m pytest tests

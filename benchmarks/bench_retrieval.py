@@ -28,6 +28,8 @@ import yaml  # noqa: E402
 from mapping.evaluate.retrieval import score_instances  # noqa: E402
 from mapping.evaluate.semantic import zero_shot_labels  # noqa: E402
 from mapping.perception import CodeBook, CodeBookEntry, shared_text_encoder  # noqa: E402
+from mapping.perception.captioner import TemplateCaptioner  # noqa: E402
+from openmulti_env.world.semantics import instance_infos  # noqa: E402
 from openmulti_env.world import REPLICA_LIKE_PRESETS, make_scene  # noqa: E402
 from openmulti_env.world.furniture import CATEGORIES  # noqa: E402
 from openmulti_env.world.scene import STRUCTURE_CATEGORIES  # noqa: E402
@@ -59,11 +61,21 @@ def load_queries(path: Path) -> list[Query]:
     return out
 
 
-def scene_codebook(scene, encoder) -> tuple[CodeBook, dict[int, str]]:
-    """Code book of a scene's instances with their metadata captions; and id -> ground-truth category."""
-    features = encoder.encode([inst.caption for inst in scene.instances])
-    book = CodeBook({inst.instance_id: CodeBookEntry(inst.caption, f, confidence=1.0)
-                     for inst, f in zip(scene.instances, features)})
+def scene_codebook(scene, encoder, captions: str = "metadata", seed: int = 0) -> tuple[CodeBook, dict[int, str]]:
+    """Code book of a scene's instances and id -> ground-truth category.
+
+    ``captions``: "metadata" = the scene's own caption of each instance; "captioner" = one caption of
+    the simulated front end's captioner (varied phrasings and synonyms, no semantic error), as the
+    fused code book of a run would hold.
+    """
+    if captions == "metadata":
+        texts = [inst.caption for inst in scene.instances]
+    else:
+        captioner = TemplateCaptioner(seed)
+        texts = [captioner.caption(info, agent=0, frame_index=0) for info in instance_infos(scene)]
+    features = encoder.encode(texts)
+    book = CodeBook({inst.instance_id: CodeBookEntry(text, f, confidence=1.0)
+                     for inst, text, f in zip(scene.instances, texts, features)})
     return book, {inst.instance_id: inst.category for inst in scene.instances}
 
 
@@ -72,6 +84,8 @@ def main() -> None:
     parser.add_argument("--scenes", nargs="*", default=list(REPLICA_LIKE_PRESETS))
     parser.add_argument("--queries", type=Path, default=QUERIES)
     parser.add_argument("--out", default="runs/bench_retrieval", help="prefix of the .json and .png written")
+    parser.add_argument("--captions", choices=("metadata", "captioner"), default="metadata",
+                        help="the scene's own captions, or the simulated captioner's phrasings")
     args = parser.parse_args()
 
     queries = load_queries(args.queries)
@@ -80,7 +94,7 @@ def main() -> None:
     rows, labelling = [], {p: [0, 0] for p in LABEL_PROMPTS}
     for name in args.scenes:
         scene = make_scene(name)
-        book, truth = scene_codebook(scene, encoder)
+        book, truth = scene_codebook(scene, encoder, args.captions)
         present = set(truth.values())
         for q in queries:
             if not q.accept & present:
@@ -95,14 +109,14 @@ def main() -> None:
             labelling[prompt][1] += len(labels)
 
     table = _table(rows, args.scenes)
-    _print_tables(rows, table, labelling, args.scenes)
+    _print_tables(rows, table, labelling, args.scenes, args.captions)
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    result = {"scenes": args.scenes, "queries": len(queries), "captions": "metadata", "image_encoder": None,
+    result = {"scenes": args.scenes, "queries": len(queries), "captions": args.captions, "image_encoder": None,
               "top1_pct": table, "labelling_pct": {p: 100.0 * k / n for p, (k, n) in labelling.items()},
               "rows": rows}
     out.with_suffix(".json").write_text(json.dumps(result, indent=1))
-    _plot(table, args.scenes, out.with_suffix(".png"))
+    _plot(table, args.scenes, out.with_suffix(".png"), args.captions)
     print(f"\nWrote {out.with_suffix('.json')} and {out.with_suffix('.png')}")
 
 
@@ -121,9 +135,9 @@ def _pct(rows: list[dict]) -> float | None:
     return 100.0 * float(np.mean([r["correct"] for r in rows])) if rows else None
 
 
-def _print_tables(rows: list[dict], table: dict, labelling: dict, scenes: list[str]) -> None:
+def _print_tables(rows: list[dict], table: dict, labelling: dict, scenes: list[str], captions: str) -> None:
     cell = lambda v: "-" if v is None else f"{v:.0f}"  # noqa: E731
-    print(f"Top-1 retrieval [%], caption term only (metadata captions, SBERT), {len(rows)} (query, scene) pairs")
+    print(f"Top-1 retrieval [%], caption term only ({captions} captions, SBERT), {len(rows)} (query, scene) pairs")
     print("| kind | queries | pairs | top-1 | " + " | ".join(scenes) + " |")
     print("|---|---:|---:|---:|" + "---:|" * len(scenes))
     for kind, e in table.items():
@@ -138,7 +152,7 @@ def _print_tables(rows: list[dict], table: dict, labelling: dict, scenes: list[s
         print(f"  {prompt!r:<20} {100.0 * k / n:5.1f}  ({k}/{n})")
 
 
-def _plot(table: dict, scenes: list[str], path: Path) -> None:
+def _plot(table: dict, scenes: list[str], path: Path, captions: str) -> None:
     fig, ax = plt.subplots(figsize=(10, 4))
     width = 0.8 / len(KINDS)
     x = np.arange(len(scenes) + 1)
@@ -151,7 +165,7 @@ def _plot(table: dict, scenes: list[str], path: Path) -> None:
     ax.axhline(85, color="grey", lw=0.8, ls="--")
     ax.axhline(70, color="grey", lw=0.8, ls=":")
     ax.legend(ncol=3, loc="upper center", fontsize=9)
-    ax.set_title("Open-vocabulary retrieval, caption term only (SBERT on metadata captions)")
+    ax.set_title(f"Open-vocabulary retrieval, caption term only (SBERT on {captions} captions)")
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)

@@ -165,7 +165,7 @@ def test_viewpoint_loss_joins_the_full_instance():
     assert len(result.clusters) == 1 and result.clusters[1].reference == ("agent_0", 1, 0)
 
 
-def _under_segmented_team(u_confidence=0.3):
+def _under_segmented_team(u_confidence=0.3, right_confidence=0.8):
     """agent_0 sees two patches of a plane (left, right); agent_1 sees both as one instance."""
     frame = plane_frame(0)
     left, right = np.zeros((30, 40), bool), np.zeros((30, 40), bool)
@@ -175,7 +175,8 @@ def _under_segmented_team(u_confidence=0.3):
     labels1[3:27, 2:38] = 1
     fused = {"agent_0": fusion(instance(1, frame.backproject(mask=left), "a blue mug", 0.9, observations=[(0, 1)],
                                         source=(11,)),
-                               instance(2, frame.backproject(mask=right), "a red mug", 0.8, observations=[(0, 2)],
+                               instance(2, frame.backproject(mask=right), "a red mug", right_confidence,
+                                        observations=[(0, 2)],
                                         source=(12,))),
              "agent_1": fusion(instance(4, frame.backproject(mask=labels1 > 0), "two mugs", u_confidence,
                                         observations=[(0, 1)], source=(11, 12)))}
@@ -203,6 +204,19 @@ def test_under_segmentation_is_split_into_the_references_masks():
         align_agents(fused, None, segs).agents["agent_1"].corrected_labels(0)
     with pytest.raises(ValueError, match="no segmentation for frame 5"):
         a1.corrected_labels(5)
+
+
+def test_split_pieces_carry_their_references_meaning_whatever_the_confidences():
+    """The merged mask (0.5) is more confident than the red mug (0.2) but less than the blue one (0.9):
+    it is split, and its red piece must not outrank agent_0's red mug as the reference ("two mugs"
+    would then become the red mug's caption for everyone)."""
+    fused, frames, segs, _ = _under_segmented_team(u_confidence=0.5, right_confidence=0.2)
+    result = align_agents(fused, frames, segs)
+    a0, a1 = result.agents["agent_0"], result.agents["agent_1"]
+    assert a1.split == {4: (1, 2)}
+    for book in (a0.codebook, a1.codebook, result.codebook):
+        assert book[1].caption == "a blue mug" and book[2].caption == "a red mug"
+    assert result.codebook[2].confidence <= 0.2 + 1e-9
 
 
 def test_confident_coarse_instance_merges_the_pieces_instead():

@@ -166,12 +166,17 @@ def align_agents(fused: dict[str, FusionResult], frames: dict[str, Sequence[Fram
     graph = InstanceCollaborativeGraph(config.overlap_radius_m, config.iou_threshold, config.iob_threshold, links,
                                        config.partial_iob_threshold, config.partial_similarity, config.partial_min_points)
     graph.add_instances(clouds, confidence, {n: inst.caption_feature for n, inst in instances.items()})
-    piece_cloud = _split_under_segmented(graph, config)  # pieces of split instances -> pixel clouds
+    # pieces of split instances -> pixel clouds; and the whole instance whose meaning each piece has
+    piece_cloud, meaning_of = _split_under_segmented(graph, config)
+
+    def meaning(node: Node) -> AgentInstance:
+        """The fused instance whose caption and features a vertex carries (a piece: its reference's)."""
+        return instances[meaning_of.get(node, (node[0], node[1], 0))]
 
     clusters = graph.clusters()
     global_of = {node: gid for gid, c in enumerate(clusters, start=1) for node in c.members}
     reference = {gid: c.reference for gid, c in enumerate(clusters, start=1)}
-    team_book = CodeBook({gid: _entry(instances[(r[0], r[1], 0)], graph.confidence(r)) for gid, r in reference.items()})
+    team_book = CodeBook({gid: _entry(meaning(r), graph.confidence(r)) for gid, r in reference.items()})
 
     agents = {}
     for a in names:
@@ -182,8 +187,8 @@ def align_agents(fused: dict[str, FusionResult], frames: dict[str, Sequence[Fram
         local_to_global = {lid: next(iter(g)) for lid, g in sorted(by_local.items()) if len(g) == 1}
         split = {lid: tuple(sorted(g)) for lid, g in sorted(by_local.items()) if len(g) > 1}
         members = _members_by_global(a, nodes, fused[a], split, global_of, piece_cloud)
-        corrected = {gid: corrected_instance(gid, instances[(reference[gid][0], reference[gid][1], 0)],
-                                             graph.confidence(reference[gid]), members[gid])
+        corrected = {gid: corrected_instance(gid, meaning(reference[gid]), graph.confidence(reference[gid]),
+                                             members[gid])
                      for gid in sorted(members)}
         pieces = {lid: [(gid, np.concatenate([piece_cloud[n] for n in nodes if n[1] == lid and global_of[n] == gid]))
                         for gid in gids] for lid, gids in split.items()}
@@ -238,13 +243,20 @@ def _check_inputs(fused, frames, segmentations, links) -> list[tuple[str, str]]:
     return sorted(out)
 
 
-def _split_under_segmented(graph: InstanceCollaborativeGraph, config: AlignmentConfig) -> dict[Node, np.ndarray]:
+def _split_under_segmented(graph: InstanceCollaborativeGraph,
+                           config: AlignmentConfig) -> tuple[dict[Node, np.ndarray], dict[Node, Node]]:
     """Replace every under-segmented vertex by its pieces, round after round (item 3).
 
+    A piece matched to a reference takes that reference's meaning and at most its confidence (so a
+    piece of a wrongly merged mask never outranks the agent that segmented the object right); a
+    remainder piece keeps the split instance's own.
+
     Returns:
-        piece node -> cloud its pixels are matched against: its own points plus its reference's.
+        piece node -> cloud its pixels are matched against (its own points plus its reference's);
+        piece node -> the whole-instance vertex (part 0) whose meaning it carries.
     """
     piece_cloud: dict[Node, np.ndarray] = {}
+    meaning_of: dict[Node, Node] = {}
     next_part: dict[tuple[str, int], int] = defaultdict(lambda: 1)
     for _ in range(config.max_split_rounds):
         decisions = find_under_segmented(graph, config.split_iob_threshold, config.split_share_threshold)
@@ -260,7 +272,10 @@ def _split_under_segmented(graph: InstanceCollaborativeGraph, config: AlignmentC
                 part = (key[0], key[1], next_part[key])
                 next_part[key] += 1
                 own = points[labels == k]
-                new_clouds[part], new_conf[part] = own, graph.confidence(d.node)
+                source = d.references[k] if k < len(refs) else d.node
+                meaning_of[part] = meaning_of.get(source, (source[0], source[1], 0))
+                new_clouds[part] = own
+                new_conf[part] = min(graph.confidence(d.node), graph.confidence(source))
                 feature = graph.feature(d.references[k]) if k < len(refs) else graph.feature(d.node)
                 if feature is not None:  # a piece means what its reference means
                     new_feat[part] = feature
@@ -269,7 +284,7 @@ def _split_under_segmented(graph: InstanceCollaborativeGraph, config: AlignmentC
             graph.remove(d.node)
             piece_cloud.pop(d.node, None)
         graph.add_instances(new_clouds, new_conf, new_feat)
-    return piece_cloud
+    return piece_cloud, meaning_of
 
 
 def _members_by_global(agent: str, nodes: list[Node], fusion: FusionResult, split: dict[int, tuple[int, ...]],
