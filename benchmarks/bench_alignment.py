@@ -6,7 +6,8 @@ instances: ``none`` (each agent alone), ``paper`` (Cross-Agent Instance Alignmen
 (ground-truth ids). Reported per scene and alignment:
 
 - id consistency: share of ground-truth instances seen by two or more agents that carry one global id
-  across those agents (target >= 95 % for ``paper``);
+  across those agents (target >= 95 % for ``paper``); and id purity, the share of global ids whose
+  instances are all dominated by one ground-truth object (gluing objects together lowers it);
 - team F-mIoU / F-mAcc: the union of all agents' corrected masks back-projected (every 5th frame,
   every 4th pixel) is the reconstruction, each point labelled by zero-shot labelling of its instance's
   code-book entry, scored on 200k points of the observable ground truth (target: ``paper`` beats
@@ -28,7 +29,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from mapping.alignment import id_consistency
+from mapping.alignment import id_consistency, id_purity
 from mapping.perception import shared_text_encoder
 from mapping.perception.errors import SegmentationErrorConfig
 from openmulti_env.presets import world_config
@@ -66,6 +67,7 @@ def bench_scene(scene: str, seed: int, preset: str, encoder, errors: Segmentatio
         team = score_semantics(gt_points, gt_labels, np.concatenate(team_pts), np.concatenate(team_ids),
                                result.codebook, vocabulary, encoder)
         row[mode] = {"id_consistency": 100.0 * id_consistency(result, perception.fused),
+                     "id_purity": 100.0 * id_purity(result, perception.fused),
                      "team_f_miou": team.f_miou, "team_f_macc": team.f_macc, "agent_f_miou_mean": float(np.mean(own)),
                      "global_ids": len(result.codebook), "bytes_sent_total": int(sum(result.bytes_sent.values())),
                      "align_s": t_align}
@@ -118,7 +120,7 @@ def main() -> None:
     rows = []
     out = Path(args.out)
     header = (f"{'scene':<8} | {'consistency none/paper/oracle [%]':>34} | {'team F-mIoU none/paper/oracle':>30} | "
-              f"{'agent F-mIoU':>20} | {'MB sent':>7} | {'front s':>7} {'align s':>7}")
+              f"{'agent F-mIoU':>20} | {'purity':>6} | {'MB sent':>7} | {'front s':>7} {'align s':>7}")
     print(header)
     for scene in args.scenes:
         r = bench_scene(scene, args.seed, args.preset, encoder, errors)
@@ -127,10 +129,10 @@ def main() -> None:
         print(f"{scene:<8} | {n['id_consistency']:>10.1f} {p['id_consistency']:>10.1f} {o['id_consistency']:>10.1f}"
               f"   | {n['team_f_miou']:>9.1f} {p['team_f_miou']:>9.1f} {o['team_f_miou']:>9.1f}  "
               f"| {n['agent_f_miou_mean']:>6.1f} {p['agent_f_miou_mean']:>6.1f} {o['agent_f_miou_mean']:>6.1f} "
-              f"| {p['bytes_sent_total'] / 1e6:>7.2f} | {r['front_end_s']:>7.1f} {p['align_s']:>7.1f}", flush=True)
+              f"| {p['id_purity']:>6.1f} | {p['bytes_sent_total'] / 1e6:>7.2f} | {r['front_end_s']:>7.1f} {p['align_s']:>7.1f}", flush=True)
         write_json_atomic(out / "results.json", {"rows": rows, "seed": args.seed, "preset": args.preset,
                                                  "errors": asdict(errors)})
-    mean = {m: {k: float(np.mean([r[m][k] for r in rows])) for k in ("id_consistency", "team_f_miou", "agent_f_miou_mean")}
+    mean = {m: {k: float(np.mean([r[m][k] for r in rows])) for k in ("id_consistency", "id_purity", "team_f_miou", "agent_f_miou_mean")}
             for m in ALIGNMENT_MODES}
     print("mean     | " + "  ".join(f"{m}: consistency {mean[m]['id_consistency']:.1f}, team F-mIoU "
                                      f"{mean[m]['team_f_miou']:.1f}, agent F-mIoU {mean[m]['agent_f_miou_mean']:.1f}"

@@ -14,7 +14,6 @@ Prints tables; writes ``OUT.json`` and ``OUT.png`` (top-1 per query kind and sce
 from __future__ import annotations
 
 import argparse
-import json
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -29,6 +28,7 @@ from mapping.evaluate.retrieval import score_instances  # noqa: E402
 from mapping.evaluate.semantic import zero_shot_labels  # noqa: E402
 from mapping.perception import CodeBook, CodeBookEntry, shared_text_encoder  # noqa: E402
 from mapping.perception.captioner import TemplateCaptioner  # noqa: E402
+from openmulti_env.results import write_json_atomic  # noqa: E402
 from openmulti_env.world.semantics import instance_infos  # noqa: E402
 from openmulti_env.world import REPLICA_LIKE_PRESETS, make_scene  # noqa: E402
 from openmulti_env.world.furniture import CATEGORIES  # noqa: E402
@@ -115,7 +115,7 @@ def main() -> None:
     result = {"scenes": args.scenes, "queries": len(queries), "captions": args.captions, "image_encoder": None,
               "top1_pct": table, "labelling_pct": {p: 100.0 * k / n for p, (k, n) in labelling.items()},
               "rows": rows}
-    out.with_suffix(".json").write_text(json.dumps(result, indent=1))
+    write_json_atomic(out.with_suffix(".json"), result)
     _plot(table, args.scenes, out.with_suffix(".png"), args.captions)
     print(f"\nWrote {out.with_suffix('.json')} and {out.with_suffix('.png')}")
 

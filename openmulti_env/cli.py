@@ -14,6 +14,8 @@ import numpy as np
 from tqdm import tqdm
 
 from openmulti_env.results import write_json_atomic
+from mapping.perception.image_encoder import ImageEncoderError
+from mapping.perception.text_encoder import TextEncoderError
 from openmulti_env.team_perception import ALIGNMENT_MODES
 from openmulti_env.presets import RUN_PRESETS, world_config
 from openmulti_env.world import World, list_presets, make_scene
@@ -146,7 +148,8 @@ def _run_mapping(args: argparse.Namespace, out: Path) -> int:
     print(f"[openmulti] scene {args.scene}, {args.agents} agents, preset {args.preset}, seed {args.seed}, "
           f"policy never (each agent maps alone)")
     result = run(args.scene, args.agents, "never", args.preset, args.seed, out, device=args.device,
-                 alignment=args.alignment, segmentation_errors=not args.perfect_masks)
+                 alignment=args.alignment, segmentation_errors=not args.perfect_masks,
+                 clip_checkpoint=args.clip_checkpoint)
     print()
     print(f"{'agent':<10} {'acc [cm]':>9} {'comp [cm]':>10} {'comp ratio [%]':>15} {'F-mIoU':>7} {'F-mAcc':>7} "
           f"{'instances':>10}")
@@ -202,6 +205,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--alignment", choices=ALIGNMENT_MODES, default="none",
                    help="cross-agent instance alignment before mapping: none (each agent alone), paper "
                         "(agents exchange instance point clouds once, sec. III-C) or oracle (ground-truth ids)")
+    p.add_argument("--clip-checkpoint", metavar="PATH",
+                   help="local open_clip checkpoint: masks get visual features (optional extra openmulti[clip])")
     p.add_argument("--perfect-masks", action="store_true",
                    help="segment without the front end's error model (no semantic / over- / under-segmentation errors)")
     p.set_defaults(func=cmd_run)
@@ -230,7 +235,7 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         return int(args.func(args))
-    except (ValueError, FileNotFoundError, KeyError) as exc:
+    except (ValueError, FileNotFoundError, KeyError, TextEncoderError, ImageEncoderError) as exc:
         print(f"openmulti {args.command}: error: {exc}", file=sys.stderr)
         return 2
 

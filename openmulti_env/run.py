@@ -11,6 +11,7 @@ directory resumes after the last finished agent (the front end is deterministic 
 
 from __future__ import annotations
 
+import json
 import time
 from dataclasses import asdict
 from pathlib import Path
@@ -27,6 +28,7 @@ from mapping.evaluate import evaluate_mesh, export_scene_mesh, merge_instance_me
 from mapping.evaluate.semantic import semantic_metrics, zero_shot_labels
 from mapping.perception import CodeBook, shared_text_encoder
 from mapping.perception.errors import SegmentationErrorConfig
+from mapping.perception.image_encoder import load_image_encoder
 from openmulti_env.presets import mapping_config, world_config
 from openmulti_env.results import write_json_atomic
 from openmulti_env.team_perception import (ALIGNMENT_MODES, FrontEndConfig, align_team, category_vocabulary,
@@ -59,13 +61,14 @@ def map_agent(frames: list[Frame], labels_of: Callable[[int], np.ndarray], is_st
 
 
 def run(scene: str, agents: int, policy: str, preset: str, seed: int, out: Path, device: str = "auto",
-        alignment: str = "none", segmentation_errors: bool = True) -> dict:
+        alignment: str = "none", segmentation_errors: bool = True, clip_checkpoint: str | None = None) -> dict:
     """The whole run; returns the metrics dictionary written to ``out/metrics.json``.
 
     Args:
         alignment: ``none`` (each agent keeps its own instances), ``paper`` (agents exchange instance
             point clouds once and align, sec. III-C) or ``oracle`` (ground-truth ids, an upper bound).
         segmentation_errors: apply the front end's default error model (else perfect masks).
+        clip_checkpoint: local open_clip checkpoint for visual features (None: caption features only).
     """
     if policy != "never":
         raise ValueError(f"policy {policy!r} needs the multi-agent exchange, which is not built yet; "
@@ -74,15 +77,18 @@ def run(scene: str, agents: int, policy: str, preset: str, seed: int, out: Path,
         raise ValueError(f"unknown alignment {alignment!r}; choose one of {ALIGNMENT_MODES}")
     start = time.perf_counter()
     torch.manual_seed(seed)
+    image_encoder = load_image_encoder(clip_checkpoint)
+    _forget_other_runs(out, {"scene": scene, "agents": agents, "preset": preset, "seed": seed, "alignment": alignment,
+                             "segmentation_errors": segmentation_errors, "clip_checkpoint": clip_checkpoint})
     world = World.build(scene, seed=seed, config=world_config(preset, agents))
     print(f"[openmulti] world {world.scene.name}: {len(world.scene.instances)} instances, "
           f"{world.num_agents} agent(s), {sum(len(p) for p in world.agent_poses)} frames")
     encoder = shared_text_encoder()
     front = FrontEndConfig(errors=SegmentationErrorConfig() if segmentation_errors else SegmentationErrorConfig.none())
-    perception = perceive_team(world, seed, front, encoder)
+    perception = perceive_team(world, seed, front, encoder, image_encoder=image_encoder)
     aligned = align_team(perception, alignment, front.alignment)
     vocabulary = category_vocabulary(world)
-    labels = zero_shot_labels(aligned.codebook, vocabulary, encoder)
+    labels = zero_shot_labels(aligned.codebook, vocabulary, encoder, image_encoder)
     structure = structure_ids(aligned.codebook, labels)
     gt = world.surface.culled_mesh()
     gt_points, gt_labels = semantic_ground_truth(world, 200_000, seed)
@@ -116,6 +122,9 @@ def run(scene: str, agents: int, policy: str, preset: str, seed: int, out: Path,
                             np.concatenate(team_ids) if team_ids else np.zeros(0, np.int64), labels)
     if alignment != "none":
         _labelled(aligned.codebook, labels).save(out / "codebook", "team")
+    else:  # agents' ids are their own: a team code book of an earlier run must not answer queries
+        for suffix in (".json", ".npz"):
+            (out / "codebook" / f"team{suffix}").unlink(missing_ok=True)
     mean = {k: _mean([m[k] for m in per_agent.values()]) for k in METRIC_KEYS}
     result = {
         "agents": per_agent, "mean": mean, "bytes_sent_total": int(sum(aligned.bytes_sent.values())),
@@ -139,6 +148,29 @@ def run(scene: str, agents: int, policy: str, preset: str, seed: int, out: Path,
                           f"alignment {alignment}")
     world.close()
     return result
+
+
+def _forget_other_runs(out: Path, settings: dict) -> None:
+    """Keep the agents' checkpoints only if they were made with these settings (ids, masks and maps
+    depend on all of them); otherwise delete them, so a resumed run never mixes two runs."""
+    path = out / "checkpoints" / "run_settings.json"
+    if path.is_file():
+        try:
+            same = json.loads(path.read_text()) == settings
+        except ValueError:
+            same = False
+        if not same:
+            stale = sorted((out / "checkpoints").glob("agent_*.pt"))
+            for ckpt in stale:
+                ckpt.unlink()
+            if stale:
+                print(f"[openmulti] {out}: settings differ from the run that wrote its checkpoints; "
+                      f"deleted {len(stale)} checkpoint(s) and mapping again")
+    elif any((out / "checkpoints").glob("agent_*.pt")):
+        for ckpt in (out / "checkpoints").glob("agent_*.pt"):
+            ckpt.unlink()
+        print(f"[openmulti] {out}: checkpoints without recorded settings deleted; mapping again")
+    write_json_atomic(path, settings)
 
 
 def _labelled(book: CodeBook, labels: dict[int, str]) -> CodeBook:

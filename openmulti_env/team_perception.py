@@ -21,6 +21,7 @@ from mapping.fusion import FusionConfig, fuse_frames
 from mapping.perception import CodeBook, FrameSegmentation, FusionResult, TextEncoder, shared_text_encoder
 from mapping.perception.errors import SegmentationErrorConfig
 from mapping.perception.front_end import encode_segments
+from mapping.perception.image_encoder import ImageTextEncoder
 from mapping.perception.segmenter import OracleSegmenter
 from openmulti_env.world.scene import STRUCTURE_CATEGORIES
 from openmulti_env.world.semantics import instance_anchor_points, instance_infos
@@ -53,8 +54,11 @@ class TeamPerception:
 
 
 def perceive_team(world: World, seed: int, config: FrontEndConfig | None = None,
-                  text_encoder: TextEncoder | None = None, progress: bool = True) -> TeamPerception:
-    """Render, segment (with the seeded error model), caption, encode and fuse every agent's frames."""
+                  text_encoder: TextEncoder | None = None, progress: bool = True,
+                  image_encoder: ImageTextEncoder | None = None) -> TeamPerception:
+    """Render, segment (with the seeded error model), caption, encode and fuse every agent's frames.
+
+    Masks get visual features only when an ``image_encoder`` (a local CLIP checkpoint) is given."""
     config = config or FrontEndConfig()
     encoder = text_encoder or shared_text_encoder()
     infos = instance_infos(world.scene)
@@ -67,7 +71,7 @@ def perceive_team(world: World, seed: int, config: FrontEndConfig | None = None,
         for i in tqdm(range(len(world.agent_poses[a])), desc=f"{name} perception", unit="frame", disable=not progress):
             frame = world.render(a, i)
             agent_frames.append(frame)
-            agent_segs.append(encode_segments(segmenter.segment(frame), frame, encoder))
+            agent_segs.append(encode_segments(segmenter.segment(frame), frame, encoder, image_encoder))
         frames[name], segmentations[name] = agent_frames, agent_segs
         fused[name] = fuse_frames(agent_frames, agent_segs, config.fusion)
     return TeamPerception(frames, segmentations, fused)
@@ -115,7 +119,7 @@ def labelled_points(perception: TeamPerception, alignment: AlignmentResult, agen
         labels = alignment.corrected_labels(agent, frame.index)[::pixel_stride, ::pixel_stride]
         rows, cols = np.nonzero(labels)
         depth = frame.depth[::pixel_stride, ::pixel_stride][rows, cols]
-        ok = depth > 0
+        ok = np.isfinite(depth) & (depth > 0)
         rows, cols, depth = rows[ok], cols[ok], depth[ok]
         k = frame.intrinsics
         u, v = cols * pixel_stride, rows * pixel_stride

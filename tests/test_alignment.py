@@ -91,7 +91,7 @@ def test_voxel_downsample_keeps_one_centroid_per_voxel():
     points = np.array([[0.001, 0.001, 0.001], [0.009, 0.009, 0.009], [0.031, 0.0, 0.0]])
     out = voxel_downsample(points, 0.02)
     np.testing.assert_allclose(out, [[0.005, 0.005, 0.005], [0.031, 0.0, 0.0]])
-    with pytest.raises(ValueError, match="voxel_size_m"):
+    with pytest.raises(ValueError, match="voxel size"):
         voxel_downsample(points, 0.0)
 
 
@@ -380,3 +380,18 @@ def test_partial_views_sharing_a_strip_join_when_their_captions_agree():
     other = {"agent_0": fusion(left), "agent_1": fusion(instance(1, right.points, "a wooden door", 0.3, source=(3,)))}
     split_meaning = align_agents(other)
     assert split_meaning.agents["agent_0"].local_to_global[1] != split_meaning.agents["agent_1"].local_to_global[1]
+
+
+def test_id_purity_drops_when_alignment_glues_two_objects():
+    from mapping.alignment import id_purity
+
+    rng = np.random.default_rng(0)
+    box = box_surface([0, 0, 0], [0.3, 0.3, 0.3], rng)
+    other = box_surface([2, 0, 0], [0.3, 0.3, 0.3], rng)
+    clean = {"agent_0": fusion(instance(1, box, source=(1,)), instance(2, other, "a table", source=(2,))),
+             "agent_1": fusion(instance(1, box, source=(1,)))}
+    assert id_purity(align_agents(clean), clean) == 1.0
+    # the same cloud claimed to be a different object by agent_1: one id now covers objects 1 and 3
+    glued = {"agent_0": fusion(instance(1, box, source=(1,))), "agent_1": fusion(instance(1, box, source=(3,)))}
+    assert id_purity(align_agents(glued), glued) == 0.0
+    assert id_purity(no_alignment(glued), glued) == 1.0

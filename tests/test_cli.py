@@ -73,3 +73,10 @@ def test_mapping_run_writes_metrics_and_resumes(capsys, tmp_path):
     assert capsys.readouterr().out.count("resumed its finished map") == 2
     again = json.loads((out / "metrics.json").read_text())
     assert again["agents"] == metrics["agents"]
+    # other settings in the same directory: the old maps are not reused, and the team ids answer queries
+    assert main(args + ["--alignment", "paper"]) == 0
+    printed = capsys.readouterr().out
+    assert "settings differ" in printed and "resumed" not in printed
+    aligned = json.loads((out / "metrics.json").read_text())
+    assert aligned["config"]["alignment"] == "paper" and aligned["bytes_sent_total"] > 0
+    assert (out / "codebook" / "team.json").exists()

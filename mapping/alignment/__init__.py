@@ -9,11 +9,11 @@ The instance confidence of eq. 1-2 lives in ``confidence``.
 from mapping.alignment.align import (AgentAlignment, AlignmentConfig, AlignmentResult, align_agents,
                                      no_alignment)
 from mapping.alignment.graph import Cluster, InstanceCollaborativeGraph, Node
-from mapping.alignment.oracle import id_consistency, oracle_alignment
+from mapping.alignment.oracle import id_consistency, id_purity, oracle_alignment
 from mapping.alignment.overlap import iob, iou, message_bytes, voxel_downsample
 
 __all__ = [
     "AgentAlignment", "AlignmentConfig", "AlignmentResult", "Cluster", "InstanceCollaborativeGraph", "Node",
-    "align_agents", "id_consistency", "iob", "iou", "message_bytes", "no_alignment", "oracle_alignment",
+    "align_agents", "id_consistency", "id_purity", "iob", "iou", "message_bytes", "no_alignment", "oracle_alignment",
     "voxel_downsample",
 ]

@@ -21,13 +21,7 @@ from typing import Sequence
 import numpy as np
 from scipy import ndimage
 
-
-def _central_box(height: int, width: int, border_margin: float) -> tuple[int, int, int, int]:
-    """(v0, v1, u0, u1): the central region is rows v0 <= v < v1, columns u0 <= u < u1."""
-    if not 0.0 <= border_margin < 0.5:
-        raise ValueError(f"border_margin must be in [0, 0.5), got {border_margin}")
-    mv, mu = int(round(border_margin * height)), int(round(border_margin * width))
-    return mv, height - mv, mu, width - mu
+from mapping.data.frame import central_region
 
 
 def frame_confidence(mask: np.ndarray, border_margin: float = 0.1) -> float:
@@ -45,7 +39,7 @@ def frame_confidence(mask: np.ndarray, border_margin: float = 0.1) -> float:
     if mask.ndim != 2:
         raise ValueError(f"mask must be (H, W), got shape {mask.shape}")
     mask = mask.astype(bool, copy=False)
-    v0, v1, u0, u1 = _central_box(*mask.shape, border_margin)
+    v0, v1, u0, u1 = central_region(*mask.shape, border_margin)
     rows, cols = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))
     if rows.size == 0:
         return 0.0
@@ -69,7 +63,7 @@ def label_confidences(labels: np.ndarray, border_margin: float = 0.1) -> dict[in
         raise ValueError(f"labels must be an (H, W) integer image, got {labels.dtype} {labels.shape}")
     if labels.size and labels.min() < 0:
         raise ValueError("labels must be non-negative (0 = no mask)")
-    v0, v1, u0, u1 = _central_box(*labels.shape, border_margin)
+    v0, v1, u0, u1 = central_region(*labels.shape, border_margin)
     areas = np.bincount(labels.ravel())
     out: dict[int, float] = {}
     for i, box in enumerate(ndimage.find_objects(labels), start=1):

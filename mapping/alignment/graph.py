@@ -28,7 +28,8 @@ from typing import Iterable
 import networkx as nx
 import numpy as np
 
-from mapping.alignment.overlap import check_points, iou_from_counts, pairwise_overlap_counts
+from mapping.alignment.overlap import iou_from_counts, pairwise_overlap_counts
+from mapping.pointcloud import check_points
 
 Node = tuple[str, int, int]
 """(agent name, local instance id, part): part 0 = the whole instance, >= 1 = a piece of a split one."""

@@ -86,6 +86,26 @@ def id_consistency(result: AlignmentResult, fused: dict[str, FusionResult]) -> f
     return consistent / len(shared)
 
 
+def id_purity(result: AlignmentResult, fused: dict[str, FusionResult]) -> float:
+    """Share of global ids whose instances (over all agents) are dominated by ONE ground-truth object.
+
+    The counterpart of ``id_consistency``, which one all-swallowing cluster would satisfy: purity
+    falls when alignment glues different objects together. Split instances are skipped (as there);
+    1.0 when no id has an instance.
+    """
+    sources: dict[int, set[int]] = defaultdict(set)
+    for a, fusion in fused.items():
+        if a not in result.agents:
+            raise ValueError(f"agent {a} is not in the alignment result")
+        mapping = result.agents[a].local_to_global
+        for lid, inst in fusion.instances.items():
+            if inst.source_ids and lid in mapping:
+                sources[mapping[lid]].add(int(inst.source_ids[0]))
+    if not sources:
+        return 1.0
+    return sum(len(s) == 1 for s in sources.values()) / len(sources)
+
+
 class _OracleLabeller:
     """Label images in ground-truth ids: dominant source per mask, per pixel for multi-object masks."""
 

@@ -28,45 +28,12 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from mapping.perception.types import AgentInstance
+from mapping.pointcloud import check_points, voxel_downsample
 
 FLOAT32_BYTES = 4
 """xyz, features and confidence travel as float32."""
 ID_BYTES = 4
 """The local instance id travels as int32."""
-
-
-def check_points(points: np.ndarray, what: str = "points") -> np.ndarray:
-    """(n, 3) float64 copy-free view of ``points``; ValueError naming ``what`` for bad shape or NaN."""
-    points = np.asarray(points, dtype=np.float64)
-    if points.ndim != 2 or points.shape[1] != 3:
-        raise ValueError(f"{what} must be an (n, 3) array, got shape {points.shape}")
-    if not np.all(np.isfinite(points)):
-        raise ValueError(f"{what} contain NaN or infinite coordinates")
-    return points
-
-
-def voxel_downsample(points: np.ndarray, voxel_size_m: float) -> np.ndarray:
-    """One point per occupied voxel: the centroid of the points that fall in it.
-
-    Args:
-        points: (n, 3) float world points.
-        voxel_size_m: edge of the cubic voxels of a world-aligned grid (> 0).
-
-    Returns:
-        (m, 3) float64 centroids, m <= n, sorted by voxel index (deterministic).
-    """
-    points = check_points(points)
-    if not voxel_size_m > 0:
-        raise ValueError(f"voxel_size_m must be > 0, got {voxel_size_m}")
-    if len(points) == 0:
-        return points.reshape(0, 3)
-    cells = np.floor(points / voxel_size_m).astype(np.int64)
-    cells -= cells.min(axis=0)
-    extent = cells.max(axis=0) + 1
-    key = (cells[:, 0] * extent[1] + cells[:, 1]) * extent[2] + cells[:, 2]  # one int per voxel
-    _, inverse, counts = np.unique(key, return_inverse=True, return_counts=True)
-    sums = np.stack([np.bincount(inverse, weights=points[:, d], minlength=len(counts)) for d in range(3)], axis=1)
-    return sums / counts[:, None]
 
 
 def directed_overlap_count(a: np.ndarray, b: np.ndarray, radius_m: float) -> int:

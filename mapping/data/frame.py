@@ -44,6 +44,15 @@ class Intrinsics:
         return Intrinsics(width, height, fx, fx, width / 2.0, height / 2.0)
 
 
+def central_region(height: int, width: int, border_margin: float) -> tuple[int, int, int, int]:
+    """(v0, v1, u0, u1): the image's central region, rows v0 <= v < v1 and columns u0 <= u < u1, after
+    a border band of ``border_margin`` x height / width (the "central region" of the paper's eq. 1)."""
+    if not 0.0 <= border_margin < 0.5:
+        raise ValueError(f"border_margin must be in [0, 0.5), got {border_margin}")
+    mv, mu = int(round(border_margin * height)), int(round(border_margin * width))
+    return mv, height - mv, mu, width - mu
+
+
 @dataclass
 class Frame:
     """One RGB-D observation of one agent.

@@ -23,6 +23,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from mapping.fusion.clustering import MaskSet, candidate_pairs, unit_rows
+from mapping.pointcloud import voxel_downsample
 
 
 @dataclass
@@ -45,35 +46,6 @@ class FineConfig:
     it and would otherwise merge into it whatever it is."""
     max_passes: int = 50
     """Safety bound on the merge passes (a pass that merges nothing ends the loop earlier)."""
-
-
-def voxel_downsample(points: np.ndarray, voxel_m: float, groups: np.ndarray | None = None):
-    """One point (the mean) per occupied voxel, separately per group when ``groups`` is given.
-
-    Args:
-        points: (n, 3) float64.
-        voxel_m: voxel edge in metres (> 0).
-        groups: optional (n,) non-negative int labels; points of different groups never share a voxel.
-
-    Returns:
-        (m, 3) float64 points ordered by (group, voxel key), deterministic; with ``groups``, also the
-        (m,) group of each point (sorted ascending).
-    """
-    if voxel_m <= 0:
-        raise ValueError(f"voxel size must be positive, got {voxel_m}")
-    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-    g = np.zeros(len(points), np.int64) if groups is None else np.asarray(groups, np.int64)
-    if len(points) == 0:
-        return points if groups is None else (points, g)
-    keys = np.floor(points / voxel_m).astype(np.int64)
-    keys -= keys.min(axis=0)
-    dims = keys.max(axis=0) + 1
-    cells = int(np.prod(dims))
-    flat = g * cells + (keys[:, 0] * dims[1] + keys[:, 1]) * dims[2] + keys[:, 2]
-    uniq, inverse, counts = np.unique(flat, return_inverse=True, return_counts=True)
-    means = np.stack([np.bincount(inverse, weights=points[:, a], minlength=len(uniq)) for a in range(3)], axis=1)
-    means /= counts[:, None]
-    return means if groups is None else (means, uniq // cells)
 
 
 class UnionFind:

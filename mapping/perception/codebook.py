@@ -6,6 +6,7 @@ captions, confidences, labels) beside ``NAME.npz`` (the feature arrays), each wr
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import tempfile
@@ -52,7 +53,9 @@ class CodeBook(dict):
         meta = {"version": 1, "instances": [{"id": int(i), "caption": self[i].caption,
                                               "confidence": float(self[i].confidence), "label": self[i].label,
                                               "has_visual": self[i].visual_feature is not None} for i in ids]}
-        _atomic_write(directory / f"{name}.npz", lambda f: np.savez(f, **arrays))
+        npz = directory / f"{name}.npz"
+        _atomic_write(npz, lambda f: np.savez(f, **arrays))
+        meta["npz_sha256"] = hashlib.sha256(npz.read_bytes()).hexdigest()  # pairs the two files
         path = directory / f"{name}.json"
         _atomic_write(path, lambda f: f.write(json.dumps(meta, indent=1).encode()))
         return path
@@ -66,6 +69,8 @@ class CodeBook(dict):
                 raise CodeBookError(f"code book file missing: {p}")
         try:
             meta = json.loads(json_path.read_text())
+            if meta.get("npz_sha256") not in (None, hashlib.sha256(npz_path.read_bytes()).hexdigest()):
+                raise CodeBookError(f"{npz_path} does not belong to {json_path} (written by another save)")
             with np.load(npz_path) as arrays:
                 book = cls()
                 for rec in meta["instances"]:

@@ -13,7 +13,7 @@ from typing import Mapping, Protocol, Sequence
 import numpy as np
 from scipy import ndimage
 
-from mapping.data.frame import Frame
+from mapping.data.frame import Frame, central_region
 from mapping.perception.captioner import UNKNOWN_CAPTION, Captioner, TemplateCaptioner
 from mapping.perception.errors import ErrorPlan, SegmentationErrorConfig, mask_dropped, plan_errors, split_labels
 from mapping.perception.types import FrameSegmentation, InstanceInfo, Segment
@@ -63,9 +63,8 @@ def _assemble(candidates: np.ndarray, specs: list, min_pixels: int) -> tuple[np.
 
 
 def _inside_central_region(labels: np.ndarray, count: int, margin: float) -> np.ndarray:
-    """(count,) bool: whether mask k + 1 lies wholly inside the image minus a ``margin`` border band."""
-    h, w = labels.shape
-    top, bottom, left, right = margin * h, (1.0 - margin) * h, margin * w, (1.0 - margin) * w
+    """(count,) bool: whether mask k + 1 lies wholly inside the central region of eq. 1."""
+    top, bottom, left, right = central_region(*labels.shape, margin)
     out = np.zeros(count, bool)
     for k, box in enumerate(ndimage.find_objects(labels, max_label=count)):
         if box is not None:
