@@ -63,8 +63,10 @@ def score_instances(
     """Every instance's similarity to ``query``, best first (ties broken by the smaller id).
 
     score = (visual_weight * cos(v_i, E_img(q)) + caption_weight * cos(c_i, SBERT(q)))
-    / (visual_weight + caption_weight) for instances with a visual feature when ``image_encoder`` is
-    given, else cos(c_i, SBERT(q)).
+    / (visual_weight + caption_weight) when ``image_encoder`` is given and some instance has a visual
+    feature; an instance without one then scores its visual term as 0 (the same formula for all, so
+    scores stay comparable: CLIP and SBERT cosines have different ranges). Without visual features
+    anywhere: cos(c_i, SBERT(q)).
 
     Args:
         query: free text ("somewhere to sleep"); must not be blank.
@@ -106,9 +108,9 @@ def score_instances(
     labels = labels if labels is not None else {i: codebook[i].label for i in ids}
     hits = []
     for i, cap in zip(ids, caption_scores):
-        if i in visual_scores:
-            score = (visual_weight * visual_scores[i] + caption_weight * cap) / (visual_weight + caption_weight)
-            terms: tuple[str, ...] = ("visual", "caption")
+        if visual_scores:  # one formula for every instance; a missing visual feature counts 0
+            score = (visual_weight * visual_scores.get(i, 0.0) + caption_weight * cap) / (visual_weight + caption_weight)
+            terms: tuple[str, ...] = ("visual", "caption") if i in visual_scores else ("caption",)
         else:
             score, terms = float(cap), ("caption",)
         hits.append(RetrievalHit(int(i), codebook[i].caption, labels.get(i), float(score), float(cap),

@@ -5,7 +5,9 @@ instance), like the systematic mistakes of a real segmenter looking at an object
 the room: cross-frame fusion cannot average them away, only another agent's view can fix them
 (paper, sec. III-C). Mask drops (viewpoint loss) are drawn per (seed, agent, frame, instance).
 Every draw comes from its own ``numpy`` generator keyed by those integers, so the plan is
-deterministic and one instance's draw never depends on the others.
+deterministic and one instance's draws never depend on the others, except that an under-segmentation
+partner is chosen among the instances not already paired, in id order. A semantic error shows only
+in views that cut the instance at the image border (``semantic_errors_in_partial_views``).
 
 Structure (walls, floor, ceiling) gets no errors by default: CropFormer-like segmenters rarely miss
 or mislabel a wall, and splitting or merging room planes is not what the paper's alignment targets.
