@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import json
 import time
+import warnings
 from dataclasses import asdict
 from pathlib import Path
 from typing import Callable
@@ -28,7 +29,7 @@ from mapping.evaluate import evaluate_mesh, export_scene_mesh, merge_instance_me
 from mapping.evaluate.semantic import semantic_metrics, zero_shot_labels
 from mapping.perception import CodeBook, shared_text_encoder
 from mapping.perception.errors import SegmentationErrorConfig
-from mapping.perception.image_encoder import load_image_encoder
+from mapping.perception.image_encoder import VisualFeatureNotice, load_image_encoder
 from openmulti_env.presets import mapping_config, world_config
 from openmulti_env.results import write_json_atomic
 from openmulti_env.team_perception import (ALIGNMENT_MODES, FrontEndConfig, align_team, category_vocabulary,
@@ -77,7 +78,11 @@ def run(scene: str, agents: int, policy: str, preset: str, seed: int, out: Path,
         raise ValueError(f"unknown alignment {alignment!r}; choose one of {ALIGNMENT_MODES}")
     start = time.perf_counter()
     torch.manual_seed(seed)
-    image_encoder = load_image_encoder(clip_checkpoint)
+    with warnings.catch_warnings(record=True) as notices:
+        warnings.simplefilter("always", VisualFeatureNotice)
+        image_encoder = load_image_encoder(clip_checkpoint)
+    for notice in notices:  # said once, as one line
+        print(f"[openmulti] note: {notice.message}")
     _forget_other_runs(out, {"scene": scene, "agents": agents, "preset": preset, "seed": seed, "alignment": alignment,
                              "segmentation_errors": segmentation_errors, "clip_checkpoint": clip_checkpoint})
     world = World.build(scene, seed=seed, config=world_config(preset, agents))
