@@ -44,6 +44,11 @@ class AlignmentConfig:
     """A cloud is a piece of another when its IoB into it >= this (over- / under-segmentation test)..."""
     split_share_threshold: float = 0.2
     """... or when it holds at least this share of the other's points (a partly seen coarse instance)."""
+    split_min_piece_share: float = 0.02
+    """... and a piece must hold at least this share of the split cloud's points or be seen better than
+    it (not a sliver lying flat on it, like a window frame on a wall)."""
+    split_min_points: int = 50
+    """... and both the split cloud and its pieces need this many (down-sampled) points."""
     split_radius_m: float = 0.05
     """Points of a split instance farther than this from every reference form a remainder piece."""
     min_remainder_fraction: float = 0.1
@@ -257,9 +262,11 @@ def _split_under_segmented(graph: InstanceCollaborativeGraph,
     """
     piece_cloud: dict[Node, np.ndarray] = {}
     meaning_of: dict[Node, Node] = {}
+    cut_for: dict[Node, Node] = {}  # piece -> the reference vertex it was cut for
     next_part: dict[tuple[str, int], int] = defaultdict(lambda: 1)
     for _ in range(config.max_split_rounds):
-        decisions = find_under_segmented(graph, config.split_iob_threshold, config.split_share_threshold)
+        decisions = find_under_segmented(graph, config.split_iob_threshold, config.split_share_threshold,
+                                         config.split_min_piece_share, config.split_min_points)
         if not decisions:
             break
         new_clouds, new_conf, new_feat = {}, {}, {}
@@ -274,6 +281,8 @@ def _split_under_segmented(graph: InstanceCollaborativeGraph,
                 own = points[labels == k]
                 source = d.references[k] if k < len(refs) else d.node
                 meaning_of[part] = meaning_of.get(source, (source[0], source[1], 0))
+                if k < len(refs):
+                    cut_for[part] = source
                 new_clouds[part] = own
                 new_conf[part] = min(graph.confidence(d.node), graph.confidence(source))
                 feature = graph.feature(d.references[k]) if k < len(refs) else graph.feature(d.node)
@@ -284,6 +293,9 @@ def _split_under_segmented(graph: InstanceCollaborativeGraph,
             graph.remove(d.node)
             piece_cloud.pop(d.node, None)
         graph.add_instances(new_clouds, new_conf, new_feat)
+    for piece, reference in cut_for.items():
+        if piece in graph.graph and reference in graph.graph:
+            graph.pin(piece, reference)
     return piece_cloud, meaning_of
 
 

@@ -49,7 +49,8 @@ class SplitDecision:
 
 
 def find_under_segmented(graph: InstanceCollaborativeGraph, split_iob_threshold: float,
-                         split_share_threshold: float) -> list[SplitDecision]:
+                         split_share_threshold: float, min_piece_share: float = 0.0,
+                         min_points: int = 0) -> list[SplitDecision]:
     """Vertices that hold >= 2 vertices of one other agent, and lose the confidence comparison.
 
     Vertex v (agent j) is a piece of u when it lies mostly inside u (IoB(v -> u) >= split_iob_threshold)
@@ -58,14 +59,26 @@ def find_under_segmented(graph: InstanceCollaborativeGraph, split_iob_threshold:
     of u and of every vertex w of a third agent that also holds two or more of the pieces.
     Among several agents, the one with the most confident pieces gives the split.
 
+    A sliver that merely lies ON u (a window frame or a picture flat against a wall: every point of it
+    is within the overlap radius of the wall) is not a piece of u: a piece must also hold at least
+    ``min_piece_share`` of u's points (IoB(u -> v)) or be seen better than u (higher confidence).
+    Clouds of fewer than ``min_points`` points are too small to tell two objects apart: they are
+    neither split nor pieces.
+
     Returns:
         decisions sorted by node; a vertex appears at most once.
     """
     def is_piece(v: Node, u: Node) -> bool:
+        if len(graph.cloud(v)) < min_points:
+            return False
+        if graph.iob(u, v) < min_piece_share and graph.confidence(v) <= graph.confidence(u):
+            return False
         return graph.iob(v, u) >= split_iob_threshold or graph.iob(u, v) >= split_share_threshold
 
     decisions = []
     for u in graph.nodes:
+        if len(graph.cloud(u)) < min_points:
+            continue
         pieces: dict[str, list[Node]] = defaultdict(list)
         for v in graph.overlapping(u):
             if is_piece(v, u):

@@ -123,6 +123,13 @@ class InstanceCollaborativeGraph:
                            and (n not in new or agent_a < agent_b)]
                 self._measure(nodes_a, targets)
 
+    def pin(self, node: Node, to: Node) -> None:
+        """Keep only the edge node - to: a piece cut out of an under-segmented instance belongs to the
+        reference it was cut for, even when it also lies flat on another object (a sliver of a window
+        frame is within the overlap radius of the wall behind it, too)."""
+        self.graph.remove_edges_from(list(self.graph.edges(node)))
+        self.graph.add_edge(node, to, iou=self.iou(node, to), kind="split")
+
     def remove(self, node: Node) -> None:
         """Drop a vertex with its overlaps and edges (before adding its pieces)."""
         for other in self._overlapping.pop(node, set()):
