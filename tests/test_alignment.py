@@ -395,3 +395,27 @@ def test_id_purity_drops_when_alignment_glues_two_objects():
     glued = {"agent_0": fusion(instance(1, box, source=(1,))), "agent_1": fusion(instance(1, box, source=(3,)))}
     assert id_purity(align_agents(glued), glued) == 0.0
     assert id_purity(no_alignment(glued), glued) == 1.0
+
+
+def test_a_picture_flat_on_a_wall_keeps_its_own_id():
+    """A picture 1 cm in front of a wall is within the overlap radius of it everywhere (IoB 1): the
+    paper's IoB edge alone would glue it to the wall; being 10x smaller and meaning something else,
+    it keeps its own id, while the two agents' walls still join."""
+    wall = wall_strip(0.0, 3.0)
+    strip = wall_strip(1.0, 1.4)
+    picture = strip[(strip[:, 2] > 1.0) & (strip[:, 2] < 1.5)] + [0.0, 0.01, 0.0]
+    fused = {"agent_0": fusion(instance(1, wall, "a white wall", 0.3, source=(3,))),
+             "agent_1": fusion(instance(1, wall, "a white wall", 0.4, source=(3,)),
+                               instance(2, picture, "a framed picture", 0.5, source=(9,)))}
+    result = align_agents(fused)
+    a0, a1 = result.agents["agent_0"].local_to_global, result.agents["agent_1"].local_to_global
+    assert a0[1] == a1[1] != a1[2]
+    from mapping.alignment import InstanceCollaborativeGraph
+
+    clouds = {("agent_0", 1, 0): voxel_downsample(wall, 0.02), ("agent_1", 2, 0): voxel_downsample(picture, 0.02)}
+    features = {("agent_0", 1, 0): fused["agent_0"].instances[1].caption_feature,
+                ("agent_1", 2, 0): fused["agent_1"].instances[2].caption_feature}
+    for ratio, edges in ((10.0, 0), (1e9, 1)):  # the paper's IoB edge alone joins them
+        graph = InstanceCollaborativeGraph(0.02, 0.25, 0.5, flat_size_ratio=ratio)
+        graph.add_instances(clouds, {n: 0.5 for n in clouds}, features)
+        assert graph.graph.number_of_edges() == edges

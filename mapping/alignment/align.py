@@ -61,6 +61,10 @@ class AlignmentConfig:
     """... caption cosine >= this ..."""
     partial_min_points: int = 30
     """... and at least this many overlapping points."""
+    flat_size_ratio: float = 10.0
+    """No IoB edge between a cloud and one this many times larger ... (graph.py: a picture on a wall)"""
+    flat_similarity: float = 0.3
+    """... whose captions' cosine is below this."""
 
     def __post_init__(self) -> None:
         if not self.voxel_size_m > 0 or self.overlap_radius_m < 0 or self.split_radius_m < 0:
@@ -169,7 +173,8 @@ def align_agents(fused: dict[str, FusionResult], frames: dict[str, Sequence[Fram
     bytes_sent = {a: sum(payload[a] for link in links if a in link) for a in names}
 
     graph = InstanceCollaborativeGraph(config.overlap_radius_m, config.iou_threshold, config.iob_threshold, links,
-                                       config.partial_iob_threshold, config.partial_similarity, config.partial_min_points)
+                                       config.partial_iob_threshold, config.partial_similarity, config.partial_min_points,
+                                       config.flat_size_ratio, config.flat_similarity)
     graph.add_instances(clouds, confidence, {n: inst.caption_feature for n, inst in instances.items()})
     # pieces of split instances -> pixel clouds; and the whole instance whose meaning each piece has
     piece_cloud, meaning_of = _split_under_segmented(graph, config)

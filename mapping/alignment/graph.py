@@ -60,11 +60,15 @@ class InstanceCollaborativeGraph:
         partial_iob_threshold: IoB of the semantic partial-view edge (module docstring); 1 disables it.
         partial_similarity: caption cosine the partial-view edge needs.
         partial_min_points: overlapping points the partial-view edge needs.
+        flat_size_ratio, flat_similarity: an IoB edge is refused between a cloud and one at least
+            ``flat_size_ratio`` times larger when their captions' cosine is below ``flat_similarity``
+            (a picture lying on a wall is within the overlap radius of it everywhere).
     """
 
     def __init__(self, radius_m: float, iou_threshold: float, iob_threshold: float,
                  links: Iterable[tuple[str, str]] | None = None, partial_iob_threshold: float = 1.0,
-                 partial_similarity: float = 0.6, partial_min_points: int = 30):
+                 partial_similarity: float = 0.6, partial_min_points: int = 30, flat_size_ratio: float = 10.0,
+                 flat_similarity: float = 0.3):
         for name, value in (("iou_threshold", iou_threshold), ("iob_threshold", iob_threshold)):
             if not 0.0 < value <= 1.0:
                 raise ValueError(f"{name} must be in (0, 1], got {value}")
@@ -77,6 +81,8 @@ class InstanceCollaborativeGraph:
         self.partial_iob_threshold = partial_iob_threshold
         self.partial_similarity = partial_similarity
         self.partial_min_points = partial_min_points
+        self.flat_size_ratio = flat_size_ratio
+        self.flat_similarity = flat_similarity
         self._feature: dict[Node, np.ndarray] = {}
         self.graph = nx.Graph()
         self._clouds: dict[Node, np.ndarray] = {}
@@ -151,11 +157,20 @@ class InstanceCollaborativeGraph:
             self._overlapping[u].add(v)
             self._overlapping[v].add(u)
             iob = max(self.iob(u, v), self.iob(v, u))
-            if self.iou(u, v) >= self.iou_threshold or iob >= self.iob_threshold:
+            if self.iou(u, v) >= self.iou_threshold or (iob >= self.iob_threshold and not self._lies_on(u, v)):
                 self.graph.add_edge(u, v, iou=self.iou(u, v), kind="overlap")
             elif iob >= self.partial_iob_threshold and min(n_ab[i, j], n_ba[i, j]) >= self.partial_min_points \
                     and self.similarity(u, v) >= self.partial_similarity:
                 self.graph.add_edge(u, v, iou=self.iou(u, v), kind="partial")
+
+    def _lies_on(self, u: Node, v: Node) -> bool:
+        """Whether the smaller of u, v is a different, flat thing lying on the larger one (a picture
+        on a wall, a rug on the floor): many times smaller, inside it by IoB, and meaning something
+        else (caption cosine below ``flat_similarity``). Such a pair gets no IoB edge."""
+        small, large = sorted((u, v), key=lambda n: len(self._clouds[n]))
+        if len(self._clouds[large]) < self.flat_size_ratio * max(len(self._clouds[small]), 1):
+            return False
+        return -1.0 < self.similarity(u, v) < self.flat_similarity
 
     # ------------------------------------------------------------------------------------ queries
     @property
