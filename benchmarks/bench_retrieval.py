@@ -61,19 +61,26 @@ def load_queries(path: Path) -> list[Query]:
     return out
 
 
-def scene_codebook(scene, encoder, captions: str = "metadata", seed: int = 0) -> tuple[CodeBook, dict[int, str]]:
+def scene_codebook(scene, encoder, captions: str = "metadata", seed: int = 0,
+                   views: int = 10) -> tuple[CodeBook, dict[int, str]]:
     """Code book of a scene's instances and id -> ground-truth category.
 
-    ``captions``: "metadata" = the scene's own caption of each instance; "captioner" = one caption of
-    the simulated front end's captioner (varied phrasings and synonyms, no semantic error), as the
-    fused code book of a run would hold.
+    ``captions``: "metadata" = the scene's own caption of each instance; "captioner" = what the fused
+    code book of a run holds without semantic errors: the simulated captioner's phrasings of
+    ``views`` frames, their SBERT features averaged and re-normalised (as cross-frame fusion does)
+    and the most frequent phrasing as the caption text.
     """
     if captions == "metadata":
         texts = [inst.caption for inst in scene.instances]
+        features = encoder.encode(texts)
     else:
         captioner = TemplateCaptioner(seed)
-        texts = [captioner.caption(info, agent=0, frame_index=0) for info in instance_infos(scene)]
-    features = encoder.encode(texts)
+        texts, features = [], []
+        for info in instance_infos(scene):
+            phrasings = [captioner.caption(info, agent=0, frame_index=f) for f in range(views)]
+            mean = encoder.encode(phrasings).mean(axis=0)
+            features.append(mean / np.linalg.norm(mean))
+            texts.append(max(sorted(set(phrasings)), key=phrasings.count))
     book = CodeBook({inst.instance_id: CodeBookEntry(text, f, confidence=1.0)
                      for inst, text, f in zip(scene.instances, texts, features)})
     return book, {inst.instance_id: inst.category for inst in scene.instances}
