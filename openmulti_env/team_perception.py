@@ -116,16 +116,10 @@ def labelled_points(perception: TeamPerception, alignment: AlignmentResult, agen
     """
     points, ids = [], []
     for frame in perception.frames[agent][::frame_stride]:
-        labels = alignment.corrected_labels(agent, frame.index)[::pixel_stride, ::pixel_stride]
-        rows, cols = np.nonzero(labels)
-        depth = frame.depth[::pixel_stride, ::pixel_stride][rows, cols]
-        ok = np.isfinite(depth) & (depth > 0)
-        rows, cols, depth = rows[ok], cols[ok], depth[ok]
-        k = frame.intrinsics
-        u, v = cols * pixel_stride, rows * pixel_stride
-        cam = np.stack([(u - k.cx) / k.fx * depth, (v - k.cy) / k.fy * depth, depth], axis=1)
-        points.append(cam @ frame.pose[:3, :3].T + frame.pose[:3, 3])
-        ids.append(labels[rows, cols])
+        labels = alignment.corrected_labels(agent, frame.index)
+        points.append(frame.backproject(pixel_stride, mask=labels > 0))  # row-major over valid pixels
+        depth, sub = frame.depth[::pixel_stride, ::pixel_stride], labels[::pixel_stride, ::pixel_stride]
+        ids.append(sub[np.isfinite(depth) & (depth > 0) & (sub > 0)])  # the same pixels, the same order
     if not points:
         return np.zeros((0, 3)), np.zeros(0, np.int64)
     return np.concatenate(points), np.concatenate(ids).astype(np.int64)
