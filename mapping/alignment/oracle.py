@@ -72,13 +72,8 @@ def id_consistency(result: AlignmentResult, fused: dict[str, FusionResult]) -> f
     no object is seen by two agents (nothing to be inconsistent about).
     """
     ids: dict[int, dict[str, set[int]]] = defaultdict(lambda: defaultdict(set))
-    for a, fusion in fused.items():
-        if a not in result.agents:
-            raise ValueError(f"agent {a} is not in the alignment result")
-        mapping = result.agents[a].local_to_global
-        for lid, inst in fusion.instances.items():
-            if inst.source_ids and lid in mapping:
-                ids[int(inst.source_ids[0])][a].add(mapping[lid])
+    for agent, global_id, source in _dominant_sources(result, fused):
+        ids[source][agent].add(global_id)
     shared = [per_agent for per_agent in ids.values() if len(per_agent) >= 2]
     if not shared:
         return 1.0
@@ -94,16 +89,22 @@ def id_purity(result: AlignmentResult, fused: dict[str, FusionResult]) -> float:
     1.0 when no id has an instance.
     """
     sources: dict[int, set[int]] = defaultdict(set)
+    for _, global_id, source in _dominant_sources(result, fused):
+        sources[global_id].add(source)
+    if not sources:
+        return 1.0
+    return sum(len(s) == 1 for s in sources.values()) / len(sources)
+
+
+def _dominant_sources(result: AlignmentResult, fused: dict[str, FusionResult]):
+    """(agent, global id, dominant ground-truth id) of every unsplit instance that has a source."""
     for a, fusion in fused.items():
         if a not in result.agents:
             raise ValueError(f"agent {a} is not in the alignment result")
         mapping = result.agents[a].local_to_global
         for lid, inst in fusion.instances.items():
             if inst.source_ids and lid in mapping:
-                sources[mapping[lid]].add(int(inst.source_ids[0]))
-    if not sources:
-        return 1.0
-    return sum(len(s) == 1 for s in sources.values()) / len(sources)
+                yield a, mapping[lid], int(inst.source_ids[0])
 
 
 class _OracleLabeller:
