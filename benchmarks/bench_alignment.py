@@ -32,7 +32,7 @@ import torch
 from mapping.alignment import id_consistency, id_purity
 from mapping.perception import shared_text_encoder
 from mapping.perception.errors import SegmentationErrorConfig
-from openmulti_env.presets import world_config
+from openmulti_env.run_presets import world_config
 from openmulti_env.results import write_json_atomic
 from openmulti_env.team_perception import (ALIGNMENT_MODES, FrontEndConfig, align_team, category_vocabulary,
                                            labelled_points, perceive_team, score_semantics, semantic_ground_truth)

@@ -17,7 +17,7 @@ from openmulti_env.results import write_json_atomic
 from mapping.perception.image_encoder import ImageEncoderError
 from mapping.perception.text_encoder import TextEncoderError
 from openmulti_env.team_perception import ALIGNMENT_MODES
-from openmulti_env.presets import RUN_PRESETS, world_config
+from openmulti_env.run_presets import RUN_PRESETS, world_config
 from openmulti_env.world import World, list_presets, make_scene
 from openmulti_env.world.presets import PRESETS
 from openmulti_env.world.world import MAX_AGENTS

@@ -30,7 +30,7 @@ from mapping.evaluate.semantic import semantic_metrics, zero_shot_labels
 from mapping.perception import CodeBook, shared_text_encoder
 from mapping.perception.errors import SegmentationErrorConfig
 from mapping.perception.image_encoder import VisualFeatureNotice, load_image_encoder
-from openmulti_env.presets import mapping_config, world_config
+from openmulti_env.run_presets import mapping_config, world_config
 from openmulti_env.results import write_json_atomic
 from openmulti_env.team_perception import (ALIGNMENT_MODES, FrontEndConfig, align_team, category_vocabulary,
                                            perceive_team, semantic_ground_truth, structure_ids)
