@@ -14,7 +14,7 @@ from __future__ import annotations
 import json
 import time
 import warnings
-from dataclasses import asdict
+from dataclasses import asdict, replace
 from pathlib import Path
 from typing import Callable
 
@@ -83,9 +83,9 @@ def run(scene: str, agents: int, policy: str, preset: str, seed: int, out: Path,
         image_encoder = load_image_encoder(clip_checkpoint)
     for notice in notices:  # said once, as one line
         print(f"[openmulti] note: {notice.message}")
+    world = World.build(scene, seed=seed, config=world_config(preset, agents))
     _forget_other_runs(out, {"scene": scene, "agents": agents, "preset": preset, "seed": seed, "alignment": alignment,
                              "segmentation_errors": segmentation_errors, "clip_checkpoint": clip_checkpoint})
-    world = World.build(scene, seed=seed, config=world_config(preset, agents))
     print(f"[openmulti] world {world.scene.name}: {len(world.scene.instances)} instances, "
           f"{world.num_agents} agent(s), {sum(len(p) for p in world.agent_poses)} frames")
     encoder = shared_text_encoder()
@@ -159,32 +159,22 @@ def _forget_other_runs(out: Path, settings: dict) -> None:
     """Keep the agents' checkpoints only if they were made with these settings (ids, masks and maps
     depend on all of them); otherwise delete them, so a resumed run never mixes two runs."""
     path = out / "checkpoints" / "run_settings.json"
-    if path.is_file():
-        try:
-            same = json.loads(path.read_text()) == settings
-        except ValueError:
-            same = False
-        if not same:
-            stale = sorted((out / "checkpoints").glob("agent_*.pt"))
-            for ckpt in stale:
-                ckpt.unlink()
-            if stale:
-                print(f"[openmulti] {out}: settings differ from the run that wrote its checkpoints; "
-                      f"deleted {len(stale)} checkpoint(s) and mapping again")
-    elif any((out / "checkpoints").glob("agent_*.pt")):
-        for ckpt in (out / "checkpoints").glob("agent_*.pt"):
-            ckpt.unlink()
-        print(f"[openmulti] {out}: checkpoints without recorded settings deleted; mapping again")
+    try:
+        same = json.loads(path.read_text()) == settings
+    except (OSError, ValueError):  # no record (or an unreadable one): the checkpoints cannot be trusted
+        same = False
+    stale = [] if same else sorted((out / "checkpoints").glob("agent_*.pt"))
+    for ckpt in stale:
+        ckpt.unlink()
+    if stale:
+        print(f"[openmulti] {out}: settings differ from the run that wrote its checkpoints; "
+              f"deleted {len(stale)} checkpoint(s) and mapping again")
     write_json_atomic(path, settings)
 
 
 def _labelled(book: CodeBook, labels: dict[int, str]) -> CodeBook:
     """A copy of ``book`` whose entries carry their zero-shot labels."""
-    out = CodeBook()
-    for i, entry in book.items():
-        out[i] = type(entry)(entry.caption, entry.caption_feature, entry.visual_feature, entry.confidence,
-                             labels.get(i))
-    return out
+    return CodeBook({i: replace(entry, label=labels.get(i)) for i, entry in book.items()})
 
 
 def _save_rendered_views(path: Path, world: World, agent: int, mapper: MappingAgent, stride: int = 4) -> None:

@@ -117,9 +117,9 @@ def labelled_points(perception: TeamPerception, alignment: AlignmentResult, agen
     points, ids = [], []
     for frame in perception.frames[agent][::frame_stride]:
         labels = alignment.corrected_labels(agent, frame.index)
-        points.append(frame.backproject(pixel_stride, mask=labels > 0))  # row-major over valid pixels
-        depth, sub = frame.depth[::pixel_stride, ::pixel_stride], labels[::pixel_stride, ::pixel_stride]
-        ids.append(sub[np.isfinite(depth) & (depth > 0) & (sub > 0)])  # the same pixels, the same order
+        frame_points, valid = frame.backproject_pixels(pixel_stride, mask=labels > 0)
+        points.append(frame_points)
+        ids.append(labels[::pixel_stride, ::pixel_stride][valid])
     if not points:
         return np.zeros((0, 3)), np.zeros(0, np.int64)
     return np.concatenate(points), np.concatenate(ids).astype(np.int64)

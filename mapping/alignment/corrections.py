@@ -29,7 +29,7 @@ from scipy import ndimage
 from scipy.spatial import cKDTree
 
 from mapping.alignment.graph import InstanceCollaborativeGraph, Node
-from mapping.data.frame import Frame, backproject_depth
+from mapping.data.frame import Frame
 from mapping.perception.types import AgentInstance, FrameSegmentation, FusionResult
 
 
@@ -209,14 +209,11 @@ class MaskRelabeller:
 
     def _split_mask(self, frame_index: int, mask: np.ndarray, pieces: list[tuple[int, np.ndarray]]) -> np.ndarray:
         """Global id of each pixel of ``mask``: the nearest piece to its back-projected point."""
-        frame = self._frame(frame_index)
-        depth = frame.depth
-        valid = mask & np.isfinite(depth) & (depth > 0)
+        world, valid = self._frame(frame_index).backproject_pixels(mask=mask)
         ids = np.array([g for g, _ in pieces], np.int32)
         if not valid.any():  # no depth at all: the largest piece takes the mask
             return np.full(np.count_nonzero(mask), ids[np.argmax([len(c) for _, c in pieces])], np.int32)
         full = np.zeros(mask.shape, np.int32)
-        world = backproject_depth(depth, frame.intrinsics, frame.pose, mask=valid)
         full[valid] = ids[nearest_piece(world, [c for _, c in pieces])]
         if not valid.all(where=mask):  # pixels without depth copy their nearest pixel with depth
             _, (rows, cols) = ndimage.distance_transform_edt(~valid, return_indices=True)

@@ -1,7 +1,8 @@
 """Frames and per-agent sequences; loaders for Replica (vMAP and NICE-SLAM layouts) and ScanNet."""
 
 from mapping.data._io import DatasetError, DatasetWarning
-from mapping.data.frame import AgentSequence, Frame, Intrinsics, backproject_depth, split_contiguous
+from mapping.data.frame import (AgentSequence, Frame, Intrinsics, backproject_depth, backproject_pixels,
+                                split_contiguous)
 from mapping.data.loaders import LazyFrames, RGBDDataset, detect_layout, load_dataset
 from mapping.data.replica import REPLICA_INTRINSICS, load_nice_slam, load_replica
 from mapping.data.scannet import load_scannet
@@ -16,6 +17,7 @@ __all__ = [
     "REPLICA_INTRINSICS",
     "RGBDDataset",
     "backproject_depth",
+    "backproject_pixels",
     "detect_layout",
     "load_dataset",
     "load_nice_slam",

@@ -98,15 +98,20 @@ class Frame:
         """
         return backproject_depth(self.depth, self.intrinsics, self.pose, stride=stride, mask=mask)
 
+    def backproject_pixels(self, stride: int = 1, mask: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """World points of the valid depth pixels and the (strided) grid of those pixels; see
+        ``backproject_pixels``."""
+        return backproject_pixels(self.depth, self.intrinsics, self.pose, stride=stride, mask=mask)
 
-def backproject_depth(
+
+def backproject_pixels(
     depth: np.ndarray,
     intrinsics: Intrinsics,
     pose: np.ndarray,
     stride: int = 1,
     mask: np.ndarray | None = None,
-) -> np.ndarray:
-    """Back-project a metric depth image to world points.
+) -> tuple[np.ndarray, np.ndarray]:
+    """Back-project a metric depth image to world points, and say which pixels they came from.
 
     Args:
         depth: (H, W) metres, 0 or non-finite = invalid.
@@ -116,7 +121,9 @@ def backproject_depth(
         mask: optional (H, W) bool selecting pixels.
 
     Returns:
-        (n, 3) float64 world points, one per valid selected pixel.
+        points: (n, 3) float64 world points, one per valid selected pixel, row-major.
+        valid: (ceil(H / stride), ceil(W / stride)) bool, True at those pixels of the strided grid,
+            so ``image[::stride, ::stride][valid]`` gives any per-pixel value in the order of ``points``.
     """
     d = depth[::stride, ::stride].astype(np.float64)
     v, u = np.mgrid[0 : depth.shape[0] : stride, 0 : depth.shape[1] : stride]
@@ -127,7 +134,18 @@ def backproject_depth(
     x = (u[valid] - intrinsics.cx) / intrinsics.fx * z
     y = (v[valid] - intrinsics.cy) / intrinsics.fy * z
     cam = np.stack([x, y, z], axis=1)
-    return cam @ pose[:3, :3].T + pose[:3, 3]
+    return cam @ pose[:3, :3].T + pose[:3, 3], valid
+
+
+def backproject_depth(
+    depth: np.ndarray,
+    intrinsics: Intrinsics,
+    pose: np.ndarray,
+    stride: int = 1,
+    mask: np.ndarray | None = None,
+) -> np.ndarray:
+    """(n, 3) float64 world points of the valid selected pixels (``backproject_pixels`` without the grid)."""
+    return backproject_pixels(depth, intrinsics, pose, stride, mask)[0]
 
 
 @dataclass

@@ -99,9 +99,7 @@ def _frame_masks(frame: Frame, seg: FrameSegmentation, cfg: FusionConfig, pos: i
     hist = hist.reshape(len(segs), 3 * bins).astype(np.float64)
     colour = np.stack([np.bincount(k, weights=rgb[:, c], minlength=len(segs)) for c in range(3)], axis=1)
     colour /= 255.0 * np.maximum(per_mask, 1)[:, None]
-    d = frame.depth[::st, ::st]
-    valid = sel & np.isfinite(d) & (d > 0)
-    pts = frame.backproject(st, lut[labels] >= 0)  # same pixel order as ``valid`` (row-major, strided)
+    pts, valid = frame.backproject_pixels(st, lut[labels] >= 0)
     pts, owner = voxel_downsample(pts, cfg.voxel_size_m, rows[valid])  # one point per (mask, voxel)
     starts = np.searchsorted(owner, np.arange(len(segs) + 1))
     slices = ndimage.find_objects(labels)
