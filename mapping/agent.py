@@ -20,7 +20,7 @@ from mapping.bounds import InstanceBound
 from mapping.checkpoint import load_checkpoint, save_checkpoint
 from mapping.data import Frame, Intrinsics
 from mapping.evaluate import extract_instance_mesh, merge_instance_meshes
-from mapping.field import OBJECT_FIELD, STRUCTURE_FIELD, InstanceFieldBank, resolve_device
+from mapping.field import OBJECT_FIELD, STRUCTURE_FIELD, InstanceFieldBank, LiveRows, frame_for_box, resolve_device
 from mapping.optim import AdamConfig, StackedAdam
 from mapping.keyframes import KeyframeBuffer
 from mapping.losses import DataLossWeights, data_loss
@@ -58,6 +58,15 @@ class MappingConfig:
     """Marching-cubes voxel for walls, floor and ceiling."""
     max_mesh_resolution: int = 256
     """Grid cap per axis (vMAP)."""
+    keyframe_capacity: int = 100
+    """Keyframes held at once (memory bound; ``fast`` and ``full`` runs stay under it)."""
+    keyframe_policy: str = "reservoir"
+    """Which keyframe a new one replaces when the buffer is full: ``reservoir`` or ``window``."""
+    frame_limit: float = 2.0
+    """An instance moves to a larger frame (refit by distillation) when its box reaches this far out
+    of its frame's cube (``InstanceFieldBank.frame_coverage``)."""
+    refit_steps: int = 150
+    """Distillation steps of such a move."""
 
 
 @dataclass
@@ -65,6 +74,47 @@ class _InstanceSlot:
     bank: str  # "object" or "structure"
     row: int
     bound: InstanceBound
+    frame_origin: int = 0
+    """Agent whose frame this instance uses (frames agree across a team: ``InstanceFrame``)."""
+    frame_version: int = 0
+    """Bumped each time that frame is enlarged."""
+    alive: bool = True
+    """False once merged into another instance (its row stays, unused)."""
+
+
+@dataclass(frozen=True)
+class InstanceFrame:
+    """An instance's fixed frame, as agents agree on it: centre (3,), half-size, and its provenance.
+
+    Of two frames of one object the team keeps the one of the lower ``origin`` agent, then the higher
+    ``version`` (``better_than``): a total order, so every agent converges to the same frame after one
+    exchange each way, and a frame never flips back and forth as confidences change.
+    """
+
+    centre: tuple[float, float, float]
+    half: float
+    origin: int
+    version: int
+
+    def better_than(self, other: "InstanceFrame") -> bool:
+        return (self.origin, -self.version, self.centre, -self.half) < (other.origin, -other.version, other.centre,
+                                                                      -other.half)
+
+    def same_as(self, other: "InstanceFrame", tol: float = 1e-5) -> bool:
+        return (abs(self.half - other.half) <= tol * max(1.0, self.half)
+                and all(abs(a - b) <= tol * max(1.0, abs(a)) for a, b in zip(self.centre, other.centre)))
+
+
+@dataclass
+class ExportedInstance:
+    """Everything a peer needs to hold or adopt one instance's network (see ``mapping.team.messages``)."""
+
+    instance_id: int
+    bank: str
+    params: np.ndarray  # (D,) float32
+    bound_lo: np.ndarray  # (3,)
+    bound_hi: np.ndarray  # (3,)
+    frame: InstanceFrame
 
 
 class MappingAgent:
@@ -78,19 +128,24 @@ class MappingAgent:
     """
 
     def __init__(self, config: MappingConfig | None = None, is_structure: Callable[[int], bool] = lambda _: False,
-                 device: str = "auto", seed: int = 0):
+                 device: str = "auto", seed: int = 0, agent_index: int = 0):
         self.config = config or MappingConfig()
         self.is_structure = is_structure
         self.device = resolve_device(device)
         self.seed = seed
+        self.agent_index = agent_index
         self.rng = np.random.default_rng(seed)
-        self.generator = torch.Generator().manual_seed(seed)
+        # Generators live on the device they draw for: ``generator`` samples rays on ``device``;
+        # ``init_generator`` (CPU) draws initial networks, so a seed gives the same network anywhere.
+        self.generator = torch.Generator(device=self.device).manual_seed(seed)
+        self.init_generator = torch.Generator().manual_seed(seed)
         self.banks = {"object": InstanceFieldBank(OBJECT_FIELD, self.device),
                       "structure": InstanceFieldBank(replace(STRUCTURE_FIELD, hidden_width=self.config.structure_width),
                                                      self.device)}
         self.optimisers = {name: StackedAdam(bank, AdamConfig(lr=self.config.lr)) for name, bank in self.banks.items()}
         self.slots: dict[int, _InstanceSlot] = {}
-        self.keyframes = KeyframeBuffer(self.device)
+        self.keyframes = KeyframeBuffer(self.device, self.config.keyframe_capacity, self.config.keyframe_policy,
+                                        seed=seed)
         self.frames_seen = 0
         self.steps = 0
 
@@ -117,27 +172,110 @@ class MappingAgent:
         if slot is None:
             name = "structure" if self.is_structure(iid) else "object"
             row = self.banks[name].add_instances(1, torch.as_tensor(bound.lo[None]), torch.as_tensor(bound.hi[None]),
-                                                 generator=self.generator)[0]
-            self.slots[iid] = _InstanceSlot(name, row, bound)
+                                                 generator=self.init_generator)[0]
+            self.slots[iid] = _InstanceSlot(name, row, bound, frame_origin=self.agent_index)
             return
         grown = slot.bound.union(bound)
         if np.any(grown.lo < slot.bound.lo - 1e-6) or np.any(grown.hi > slot.bound.hi + 1e-6):
-            slot.bound = grown
-            self.banks[slot.bank].set_bounds([slot.row], torch.as_tensor(grown.lo[None]), torch.as_tensor(grown.hi[None]))
+            self._set_bound(iid, grown)
+
+    def _set_bound(self, iid: int, bound: InstanceBound) -> None:
+        """Grow an instance's box; move it to a larger frame (same provenance, next version) if the box
+        left its frame's cube by more than ``frame_limit``."""
+        slot = self.slots[iid]
+        slot.bound = bound
+        bank = self.banks[slot.bank]
+        bank.set_bounds([slot.row], torch.as_tensor(bound.lo[None]), torch.as_tensor(bound.hi[None]))
+        if float(bank.frame_coverage([slot.row])[0]) > self.config.frame_limit:
+            centre, half = frame_for_box(torch.as_tensor(bound.lo[None], dtype=torch.float32),
+                                         torch.as_tensor(bound.hi[None], dtype=torch.float32))
+            frame = InstanceFrame(tuple(float(c) for c in centre[0]), float(half[0]), slot.frame_origin,
+                                  slot.frame_version + 1)
+            self.set_frame(iid, frame)
+
+    def frame_of(self, iid: int) -> InstanceFrame:
+        """The instance's current frame."""
+        slot = self.slots[iid]
+        bank = self.banks[slot.bank]
+        centre = bank.frame_centre[slot.row].tolist()
+        return InstanceFrame((centre[0], centre[1], centre[2]), float(bank.frame_half[slot.row]), slot.frame_origin,
+                             slot.frame_version)
+
+    def set_frame(self, iid: int, frame: InstanceFrame) -> None:
+        """Move an instance to ``frame`` (its network refit by distillation, its optimiser state reset)."""
+        slot = self.slots[iid]
+        bank = self.banks[slot.bank]
+        bank.refit_frames([slot.row], torch.tensor([frame.centre]), torch.tensor([frame.half]),
+                          steps=self.config.refit_steps, generator=self.generator)
+        self.optimisers[slot.bank].reset_rows([slot.row])
+        slot.frame_origin, slot.frame_version = frame.origin, frame.version
+
+    # ---- what peers exchange ---------------------------------------------------------------------
+    def live_ids(self) -> list[int]:
+        """Ids of the instances the map holds (merged ones excluded), sorted."""
+        return sorted(i for i, s in self.slots.items() if s.alive)
+
+    def export_instance(self, iid: int) -> ExportedInstance:
+        """The instance's network, box and frame, for a peer."""
+        slot = self.slots[iid]
+        bank = self.banks[slot.bank]
+        return ExportedInstance(iid, slot.bank, bank.get_instance_params(slot.row).cpu().numpy(),
+                                slot.bound.lo.copy(), slot.bound.hi.copy(), self.frame_of(iid))
+
+    def adopt_instance(self, iid: int, instance: ExportedInstance) -> None:
+        """Take a peer's instance whole under the new id ``iid`` (network, box, frame): it renders at
+        once and trains on consistency and shared rays until this agent sees it itself."""
+        if iid in self.slots:
+            raise ValueError(f"instance id {iid} already exists in this map")
+        if instance.bank not in self.banks:
+            raise ValueError(f"unknown bank {instance.bank!r} of adopted instance {instance.instance_id}")
+        bank = self.banks[instance.bank]
+        if instance.params.shape != (bank.param_dim,):
+            raise ValueError(f"adopted instance {instance.instance_id}: {instance.params.shape[0]} parameters, "
+                             f"this agent's {instance.bank} networks have {bank.param_dim} (widths differ?)")
+        f = instance.frame
+        row = bank.add_instances(1, torch.as_tensor(instance.bound_lo[None]), torch.as_tensor(instance.bound_hi[None]),
+                                 frame_centre=torch.tensor([f.centre]), frame_half=torch.tensor([f.half]),
+                                 params=torch.as_tensor(instance.params[None]))[0]
+        self.slots[iid] = _InstanceSlot(instance.bank, row, InstanceBound(np.asarray(instance.bound_lo, np.float64),
+                                                                          np.asarray(instance.bound_hi, np.float64)),
+                                        frame_origin=f.origin, frame_version=f.version)
+
+    def merge_instances(self, source: int, target: int) -> None:
+        """``source`` is a piece of ``target`` (over-segmentation): its pixels join ``target``'s, the
+        box grows to hold both, and ``source``'s network is retired."""
+        if source == target:
+            return
+        src, dst = self.slots[source], self.slots[target]
+        self.keyframes.merge_ids(source, target)
+        src.alive = False
+        self._set_bound(target, dst.bound.union(src.bound))
+
+    def grow_bound(self, iid: int, bound: InstanceBound) -> None:
+        """Union the instance's box with ``bound`` (e.g. a peer's box of the same object)."""
+        self._update_instance(iid, bound)
 
     # ---- training --------------------------------------------------------------------------------
-    def train(self, iterations: int | None = None) -> float:
-        """Run optimisation steps on all instances; returns the last total loss."""
+    def train(self, iterations: int | None = None, extra_loss: Callable[[], torch.Tensor] | None = None) -> float:
+        """Run optimisation steps on all instances; returns the last total loss.
+
+        ``extra_loss`` (a callable returning a scalar tensor) is added to every step's data loss: the
+        team's consistency terms (eq. 12-13)."""
         loss = 0.0
         for _ in range(iterations or self.config.iterations_per_keyframe):
-            loss = self.train_step()
+            loss = self.train_step(extra_loss)
         return loss
 
-    def train_step(self) -> float:
-        """One step on every bank: sample rays -> samples inside each box -> field -> render -> loss -> AdamW."""
-        total = 0.0
+    def trainable_ids(self, bank: str) -> list[int]:
+        """Live instances of ``bank`` that the held keyframes show (adopted, unseen ones have no data)."""
+        return [iid for iid, s in sorted(self.slots.items())
+                if s.bank == bank and s.alive and self.keyframes.has_pixels(iid)]
+
+    def data_loss(self) -> torch.Tensor:
+        """Eq. 11 summed over both banks, on one batch of keyframe rays per instance."""
+        total = torch.zeros((), device=self.device)
         for name, bank in self.banks.items():
-            ids = [iid for iid, s in self.slots.items() if s.bank == name]
+            ids = self.trainable_ids(name)
             if not ids:
                 continue
             rows = torch.as_tensor([self.slots[i].row for i in ids], device=self.device)
@@ -153,19 +291,32 @@ class MappingAgent:
             out = bank(samples.positions.reshape(n, r * s, 3), rows)
             rendered = render_occupancy(out.occupancy.reshape(n, r, s), out.colour.reshape(n, r, s, 3), samples.depths)
             valid = ~samples.occluded & (far > near)  # rays that cross the box in front of the camera
-            loss = data_loss(rendered, rays.depth, rays.rgb, rays.own.float(), valid, self.config.loss_weights).total
-            self.optimisers[name].zero_grad()
-            loss.backward()
-            self.optimisers[name].step()
-            total += float(loss.detach())
-        self.steps += 1
+            total = total + data_loss(rendered, rays.depth, rays.rgb, rays.own.float(), valid,
+                                      self.config.loss_weights).total
         return total
+
+    def train_step(self, extra_loss: Callable[[], torch.Tensor] | None = None) -> float:
+        """One step: sample rays -> samples inside each box -> field -> render -> data loss (+ extra)
+        -> AdamW on every bank."""
+        loss = self.data_loss()
+        if extra_loss is not None:
+            loss = loss + extra_loss()
+        for optimiser in self.optimisers.values():
+            optimiser.zero_grad()
+        if loss.requires_grad:
+            loss.backward()
+            for optimiser in self.optimisers.values():
+                optimiser.step()
+        self.steps += 1
+        return float(loss.detach())
 
     # ---- outputs ---------------------------------------------------------------------------------
     def instance_meshes(self) -> dict[int, trimesh.Trimesh]:
         """Marching cubes of every instance inside its box (instances that learned nothing are left out)."""
         meshes = {}
         for iid, slot in sorted(self.slots.items()):
+            if not slot.alive:
+                continue
             bank = self.banks[slot.bank]
             voxel = self.config.structure_voxel_m if slot.bank == "structure" else self.config.object_voxel_m
             mesh = extract_instance_mesh(bank.occupancy_fn(slot.row), slot.bound.lo, slot.bound.hi,
@@ -182,10 +333,10 @@ class MappingAgent:
         every ``stride``-th pixel: all instances composited along each ray by depth."""
         fields, labels = [], []
         for name, bank in self.banks.items():
-            rows = {s.row: iid for iid, s in self.slots.items() if s.bank == name}
+            rows = {s.row: iid for iid, s in self.slots.items() if s.bank == name and s.alive}
             if rows:
-                fields.append(bank)
-                labels.append(torch.as_tensor([rows[r] for r in range(bank.num_instances)], device=self.device))
+                fields.append(LiveRows(bank, sorted(rows)))
+                labels.append(torch.as_tensor([rows[r] for r in sorted(rows)], device=self.device))
         c2w = torch.as_tensor(pose, dtype=torch.float32, device=self.device)
         return render_image(fields, c2w, intrinsics, CompositeConfig(samples_per_box=samples_per_box), stride=stride,
                             labels=labels)
@@ -197,18 +348,28 @@ class MappingAgent:
     # ---- checkpoints -----------------------------------------------------------------------------
     def save(self, path: str | Path) -> Path:
         """Parameters, optimiser state, bounds and counters, written atomically."""
-        return save_checkpoint(path, {
-            "config": asdict(self.config),
-            "banks": {n: b.state_dict() for n, b in self.banks.items()},
-            "optimisers": {n: o.state_dict() for n, o in self.optimisers.items()},
-            "slots": {iid: (s.bank, s.row, s.bound.lo, s.bound.hi) for iid, s in self.slots.items()},
-            "frames_seen": self.frames_seen, "steps": self.steps,
-            "rng": self.rng.bit_generator.state, "generator": self.generator.get_state(),
-        })
+        return save_checkpoint(path, self.state())
 
     def load(self, path: str | Path) -> None:
         """Restore a checkpoint written by ``save`` (the keyframe buffer is not part of it)."""
-        data = load_checkpoint(path, map_location=self.device)
+        self.restore(load_checkpoint(path, map_location="cpu"))
+
+    def state(self) -> dict:
+        """Everything ``save`` writes, as a dict of tensors, numbers, strings and lists."""
+        return {
+            "config": asdict(self.config),
+            "banks": {n: {k: v.cpu() if torch.is_tensor(v) else v for k, v in b.state_dict().items()}
+                      for n, b in self.banks.items()},
+            "optimisers": {n: o.state_dict() for n, o in self.optimisers.items()},
+            "slots": {int(iid): [s.bank, s.row, s.bound.lo.tolist(), s.bound.hi.tolist(), s.frame_origin,
+                                 s.frame_version, s.alive] for iid, s in self.slots.items()},
+            "frames_seen": self.frames_seen, "steps": self.steps,
+            "rng": self.rng.bit_generator.state, "generator": self.generator.get_state().cpu(),
+            "init_generator": self.init_generator.get_state(),
+        }
+
+    def restore(self, data: dict) -> None:
+        """Inverse of ``state``."""
         for name, bank in self.banks.items():
             n = data["banks"][name]["params"].shape[0]
             if bank.num_instances < n:
@@ -216,9 +377,11 @@ class MappingAgent:
                                    torch.ones(n - bank.num_instances, 3))
             bank.load_state_dict(data["banks"][name])
             self.optimisers[name].load_state_dict(data["optimisers"][name])
-        self.slots = {int(i): _InstanceSlot(b, int(r), InstanceBound(np.asarray(lo), np.asarray(hi)))
-                      for i, (b, r, lo, hi) in data["slots"].items()}
+        self.slots = {int(i): _InstanceSlot(b, int(r), InstanceBound(np.asarray(lo, np.float64), np.asarray(hi, np.float64)),
+                                            int(origin), int(version), bool(alive))
+                      for i, (b, r, lo, hi, origin, version, alive) in data["slots"].items()}
         self.frames_seen, self.steps = data["frames_seen"], data["steps"]
         self.rng.bit_generator.state = data["rng"]
         self.generator.set_state(data["generator"])
+        self.init_generator.set_state(data["init_generator"])
 

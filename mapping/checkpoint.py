@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import pickle
 from pathlib import Path
 from typing import Any
 
@@ -17,8 +18,9 @@ class CheckpointError(ValueError):
 
 
 def save_checkpoint(path: str | Path, payload: dict[str, Any]) -> Path:
-    """Write ``payload`` (tensors, numbers, strings, nested dicts and lists) to ``path`` atomically:
-    a crash mid-write leaves the previous checkpoint intact."""
+    """Write ``payload`` (tensors, numbers, strings, nested dicts and lists: what ``load_checkpoint``'s
+    ``weights_only`` reading accepts) to ``path`` atomically: a crash mid-write leaves the previous
+    checkpoint intact."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(path.name + ".tmp")
@@ -38,8 +40,16 @@ def load_checkpoint(path: str | Path, map_location: str | torch.device = "cpu") 
     if not path.is_file():
         raise CheckpointError(f"{path}: checkpoint not found")
     try:
-        data = torch.load(path, map_location=map_location, weights_only=False)
-    except Exception as exc:  # noqa: BLE001  (pickle and zip errors have many types)
+        # weights_only: a checkpoint from someone else must not be able to run code on load
+        data = torch.load(path, map_location=map_location, weights_only=True)
+    except pickle.UnpicklingError as exc:
+        detail = next((line.strip() for line in str(exc).splitlines() if "Unsupported" in line), str(exc)[:200])
+        if "global" in detail:
+            raise CheckpointError(f"{path}: refused: the checkpoint holds a pickled object ({detail}); only "
+                                  "tensors, numbers, strings, lists and dicts are loaded, since anything else "
+                                  "could run code") from None
+        raise CheckpointError(f"{path}: corrupt or unreadable checkpoint ({detail})") from None
+    except Exception as exc:  # noqa: BLE001  (zip and storage errors have many types)
         raise CheckpointError(f"{path}: corrupt or unreadable checkpoint ({type(exc).__name__}: {exc})") from None
     if not isinstance(data, dict) or data.get("format") != CHECKPOINT_FORMAT:
         raise CheckpointError(f"{path}: not an OpenMulti checkpoint")

@@ -22,6 +22,13 @@ the occupancy output rides as one extra column of the colour layer (a 1-column m
 GFLOP/s); and no gradient is computed for the encodings (vMAP's concatenated skip and colour inputs
 would waste 12 % of the backward work on them).
 
+Why a fixed frame per instance: the network sees ``u = (x - frame_centre) / frame_half`` with the
+centre and half-size fixed when the instance is created (from its first box), not the box itself. A
+box that grows as the instance is seen more (``set_bounds``) therefore does not stretch what the
+network learned, and two agents whose instances share one frame hold parameter vectors of the SAME
+function, which is what parameter consistency (eq. 12) and adoption need. ``refit_frames`` moves rows
+to a new frame by distillation (the box outgrew the frame, or the team agreed on another frame).
+
 Why one flat (N, D) parameter: each instance is one row, so sending an instance's parameters between
 agents, the parameter-consistency loss (eq. 12) and DiNNO/DSGD mixing are row operations, growth is a
 row concatenation, and Adam is one fused pass. The forward splits the rows into per-layer views (one
@@ -148,6 +155,16 @@ def mlp_flops_per_point(width: int) -> int:
     return sum(2 * i * o for i, o in layers)
 
 
+def frame_for_box(bound_min: Tensor, bound_max: Tensor) -> tuple[Tensor, Tensor]:
+    """The default frame of (k, 3) boxes: their centres (k, 3) and largest half-sides (k,).
+
+    Isotropic (one half-size for all axes), so a box growing along one axis never changes how the
+    network sees the others; the box fills the frame's cube along its longest side at creation and
+    may grow to ``frame_coverage`` 2 before the agent moves it to a larger frame.
+    """
+    return (bound_min + bound_max) / 2.0, ((bound_max - bound_min) / 2.0).amax(-1)
+
+
 @dataclass(frozen=True)
 class FieldConfig:
     """Architecture of every instance network in one bank."""
@@ -209,8 +226,10 @@ class InstanceFieldBank(nn.Module):
     """N instance networks of one width, stored as one (N, D) parameter, evaluated with batched matmuls.
 
     Each instance lives in its own axis-aligned box (``bound_min``, ``bound_max``: (N, 3) buffers,
-    not learned); forward maps world points into the box's [-1, 1]^3. Rows are instance indices
-    ("rows"); the caller keeps its own map from instance ids to rows.
+    not learned: where it is sampled, rendered and meshed) and has its own fixed frame
+    (``frame_centre`` (N, 3), ``frame_half`` (N,)): forward maps world points to
+    ``(x - centre) / half``, [-1, 1]^3 on the frame's cube. Rows are instance indices ("rows"); the
+    caller keeps its own map from instance ids to rows.
     """
 
     def __init__(self, config: FieldConfig = OBJECT_FIELD, device: str | torch.device = "auto"):
@@ -222,6 +241,8 @@ class InstanceFieldBank(nn.Module):
         self.params = nn.Parameter(torch.zeros(0, sum(self._sizes), device=dev))
         self.register_buffer("bound_min", torch.zeros(0, 3, device=dev))
         self.register_buffer("bound_max", torch.zeros(0, 3, device=dev))
+        self.register_buffer("frame_centre", torch.zeros(0, 3, device=dev))
+        self.register_buffer("frame_half", torch.zeros(0, device=dev))
         self.register_buffer("directions", icosahedron_directions().to(dev), persistent=False)
 
     # ---- size and growth -------------------------------------------------------------------------
@@ -239,26 +260,103 @@ class InstanceFieldBank(nn.Module):
         return self.params.device
 
     def add_instances(self, k: int, bound_min: Tensor, bound_max: Tensor,
-                      generator: torch.Generator | None = None) -> list[int]:
-        """Append ``k`` freshly initialised instances with (k, 3) world boxes; returns their rows.
+                      generator: torch.Generator | None = None, frame_centre: Tensor | None = None,
+                      frame_half: Tensor | None = None, params: Tensor | None = None) -> list[int]:
+        """Append ``k`` instances with (k, 3) world boxes; returns their rows.
 
-        Existing rows keep their values exactly; a ``StackedAdam`` on this bank grows its state on its
-        next step (zero moments, step 0 for the new rows).
+        The frame defaults to ``frame_for_box`` of each box; ``params`` ((k, D), e.g. an instance
+        adopted from a peer) replaces the fresh initialisation. Existing rows keep their values
+        exactly; a ``StackedAdam`` on this bank grows its state on its next step (zero moments, step 0
+        for the new rows).
         """
         bmin = torch.as_tensor(bound_min, dtype=torch.float32, device=self.device).reshape(k, 3)
         bmax = torch.as_tensor(bound_max, dtype=torch.float32, device=self.device).reshape(k, 3)
         if not bool(torch.all(bmax > bmin)):
             raise ValueError("every bound_max must exceed bound_min on all three axes")
+        centre, half = frame_for_box(bmin, bmax)
+        if frame_centre is not None:
+            centre = torch.as_tensor(frame_centre, dtype=torch.float32, device=self.device).reshape(k, 3)
+        if frame_half is not None:
+            half = torch.as_tensor(frame_half, dtype=torch.float32, device=self.device).reshape(k)
+        if not bool(torch.all(half > 0)):
+            raise ValueError("every frame_half must be positive")
         start = self.num_instances
-        new = init_instance_params(self.config.hidden_width, k, generator).to(self.device)
+        if params is None:
+            new = init_instance_params(self.config.hidden_width, k, generator).to(self.device)
+        else:
+            new = torch.as_tensor(params, dtype=torch.float32, device=self.device).reshape(k, self.param_dim)
         self.params = nn.Parameter(torch.cat([self.params.detach(), new]))
         self.bound_min = torch.cat([self.bound_min, bmin])
         self.bound_max = torch.cat([self.bound_max, bmax])
+        self.frame_centre = torch.cat([self.frame_centre, centre])
+        self.frame_half = torch.cat([self.frame_half, half])
         return list(range(start, start + k))
+
+    def frame_coverage(self, rows: Sequence[int] | Tensor | None = None) -> Tensor:
+        """(n,) largest |u| of any box corner in its frame: 1 = the box just fills the frame's cube."""
+        sel = slice(None) if rows is None else torch.as_tensor(rows, dtype=torch.long, device=self.device)
+        lo, hi, c, h = self.bound_min[sel], self.bound_max[sel], self.frame_centre[sel], self.frame_half[sel]
+        return torch.maximum((lo - c).abs(), (hi - c).abs()).amax(-1) / h
+
+    def refit_frames(self, rows: Sequence[int], frame_centre: Tensor, frame_half: Tensor, steps: int = 150,
+                     points: int = 2048, lr: float = 3e-3, generator: torch.Generator | None = None) -> float:
+        """Move ``rows`` to new frames by distillation: fit each row, in its new frame, to what it
+        rendered in its old one (occupancy logits and colour at random points of its box), starting
+        from its old parameters. Returns the final mean absolute occupancy difference.
+
+        Needed when a box outgrows its frame (``frame_coverage`` too large) or when the team agrees on
+        another instance's frame; callers reset the rows' optimiser state afterwards.
+        """
+        if len(rows) == 0:
+            return 0.0
+        idx = torch.as_tensor(rows, dtype=torch.long, device=self.device)
+        centre = torch.as_tensor(frame_centre, dtype=torch.float32, device=self.device).reshape(len(rows), 3)
+        half = torch.as_tensor(frame_half, dtype=torch.float32, device=self.device).reshape(len(rows))
+        lo, hi = self.bound_min[idx], self.bound_max[idx]
+        gen = generator if generator is not None and generator.device == self.device else None
+        old_params = self.params.detach()[idx].clone()
+        old_centre, old_half = self.frame_centre[idx].clone(), self.frame_half[idx].clone()
+
+        def sample() -> Tensor:
+            u = torch.rand(len(rows), points, 3, device=self.device, generator=gen)
+            return lo[:, None] + (hi - lo)[:, None] * u
+
+        def evaluate(params: Tensor, c: Tensor, h: Tensor, x: Tensor) -> tuple[Tensor, Tensor]:
+            return self._evaluate(params, (x - c[:, None]) / h[:, None, None], with_colour=True, logits=True)
+
+        student = nn.Parameter(old_params.clone())
+        optimiser = torch.optim.Adam([student], lr=lr)
+        diff = 0.0
+        for _ in range(steps):
+            x = sample()
+            with torch.no_grad():
+                target_logit, target_colour = evaluate(old_params, old_centre, old_half, x)
+            logit, colour = evaluate(student, centre, half, x)
+            target_occ, occ = torch.sigmoid(target_logit), torch.sigmoid(logit)
+            loss = (occ - target_occ).abs().mean() + 0.2 * ((colour - target_colour).abs().mean(-1)
+                                                            * target_occ).mean()
+            optimiser.zero_grad()
+            loss.backward()
+            optimiser.step()
+            diff = float((occ - target_occ).abs().mean().detach())
+        with torch.no_grad():
+            self.params[idx] = student.detach()
+            self.frame_centre[idx] = centre
+            self.frame_half[idx] = half
+        return diff
+
+    @torch.no_grad()
+    def set_frames(self, rows: Sequence[int] | Tensor, frame_centre: Tensor, frame_half: Tensor) -> None:
+        """Replace the frames of ``rows`` as they are (no refit: for parameters that were learned in
+        that frame, e.g. a peer's; ``refit_frames`` moves a learned network to another frame)."""
+        rows = torch.as_tensor(rows, dtype=torch.long, device=self.device)
+        self.frame_centre[rows] = torch.as_tensor(frame_centre, dtype=torch.float32, device=self.device).reshape(-1, 3)
+        self.frame_half[rows] = torch.as_tensor(frame_half, dtype=torch.float32, device=self.device).reshape(-1)
 
     @torch.no_grad()
     def set_bounds(self, rows: Sequence[int] | Tensor, bound_min: Tensor, bound_max: Tensor) -> None:
-        """Replace the boxes of ``rows``. The network is not refitted: what it learned moves with the box."""
+        """Replace the boxes of ``rows`` (where they are sampled, rendered and meshed). The frame stays:
+        what the network learned does not move or stretch."""
         rows = torch.as_tensor(rows, dtype=torch.long, device=self.device)
         self.bound_min[rows] = torch.as_tensor(bound_min, dtype=torch.float32, device=self.device).reshape(-1, 3)
         self.bound_max[rows] = torch.as_tensor(bound_max, dtype=torch.float32, device=self.device).reshape(-1, 3)
@@ -283,10 +381,10 @@ class InstanceFieldBank(nn.Module):
 
     # ---- evaluation ------------------------------------------------------------------------------
     def to_unit(self, points: Tensor, rows: Tensor | None = None) -> Tensor:
-        """World (n, P, 3) -> box coordinates, [-1, 1]^3 inside each instance's box."""
-        bmin, bmax = (self.bound_min, self.bound_max) if rows is None else (self.bound_min[rows], self.bound_max[rows])
-        centre, inv_half = (bmax + bmin) / 2.0, 2.0 / (bmax - bmin)
-        return (points - centre[:, None]) * inv_half[:, None]
+        """World (n, P, 3) -> frame coordinates, [-1, 1]^3 on each instance's frame cube."""
+        centre, half = (self.frame_centre, self.frame_half) if rows is None else (self.frame_centre[rows],
+                                                                                  self.frame_half[rows])
+        return (points - centre[:, None]) / half[:, None, None]
 
     def forward(self, points: Tensor, rows: Tensor | None = None, with_colour: bool = True) -> FieldOutput:
         """Evaluate every instance (or ``rows``) on its own points, as one batched computation.
@@ -302,7 +400,13 @@ class InstanceFieldBank(nn.Module):
         params = self.params if rows is None else self.params.index_select(0, rows)
         if points.shape[0] != params.shape[0] or points.shape[-1] != 3:
             raise ValueError(f"points must be ({params.shape[0]}, P, 3), got {tuple(points.shape)}")
-        geometry, colour_in = encode_positions(self.to_unit(points, rows), self.directions, self.config.encoding_scale)
+        occupancy, colour = self._evaluate(params, self.to_unit(points, rows), with_colour)
+        return FieldOutput(occupancy, colour)
+
+    def _evaluate(self, params: Tensor, unit: Tensor, with_colour: bool, logits: bool = False
+                  ) -> tuple[Tensor, Tensor | None]:
+        """The MLP on (n, P, 3) frame coordinates with (n, D) rows: occupancy (or its logit) and colour."""
+        geometry, colour_in = encode_positions(unit, self.directions, self.config.encoding_scale)
         p = self.split_params(params)
         w = self.config.hidden_width
         b = {name: t.unsqueeze(1) for name, t in p.items() if name.startswith("b_")}  # (n, 1, out)
@@ -313,11 +417,12 @@ class InstanceFieldBank(nn.Module):
         h = torch.relu_(torch.baddbmm(pre_skip, h, p["w_skip"]))  # skip layer (W+87 -> W)
         h = torch.relu_(torch.baddbmm(b["b_mid2"], h, p["w_mid2"]))
         pre_col, raw = torch.split(torch.baddbmm(b["b_head"], h, p["w_head"]), w, dim=-1)  # colour part | raw
-        occupancy = torch.sigmoid(self._logit(raw.squeeze(-1)))
+        logit = self._logit(raw.squeeze(-1))
+        occupancy = logit if logits else torch.sigmoid(logit)
         if not with_colour:
-            return FieldOutput(occupancy, None)
+            return occupancy, None
         c = torch.relu_(torch.baddbmm(pre_col, colour_in, p["w_col_enc"]))  # colour layer (W+42 -> W)
-        return FieldOutput(occupancy, torch.sigmoid(torch.baddbmm(b["b_rgb"], c, p["w_rgb"])))
+        return occupancy, torch.sigmoid(torch.baddbmm(b["b_rgb"], c, p["w_rgb"]))
 
     def _logit(self, raw: Tensor) -> Tensor:
         """sharpness * raw, clamped to +-LOGIT_LIMIT."""
@@ -410,4 +515,31 @@ class InstanceFieldBank(nn.Module):
             self.params = nn.Parameter(torch.zeros(n, self.param_dim, device=self.device))
             self.bound_min = torch.zeros(n, 3, device=self.device)
             self.bound_max = torch.zeros(n, 3, device=self.device)
+            self.frame_centre = torch.zeros(n, 3, device=self.device)
+            self.frame_half = torch.ones(n, device=self.device)
         return super().load_state_dict(state_dict, strict=strict, assign=assign)
+
+
+class LiveRows:
+    """Some rows of a bank seen as a bank of their own (compositing needs only these members): the
+    live instances of a map whose merged instances keep unused rows."""
+
+    def __init__(self, bank: InstanceFieldBank, rows: Sequence[int]):
+        self.bank = bank
+        self.rows = torch.as_tensor(list(rows), dtype=torch.long, device=bank.device)
+
+    @property
+    def num_instances(self) -> int:
+        return len(self.rows)
+
+    @property
+    def bound_min(self) -> Tensor:
+        return self.bank.bound_min[self.rows]
+
+    @property
+    def bound_max(self) -> Tensor:
+        return self.bank.bound_max[self.rows]
+
+    def query(self, points: Tensor, rows: Tensor, with_colour: bool = True, block_size: int = 4096) -> FieldOutput:
+        """``InstanceFieldBank.query`` with rows numbered within this view."""
+        return self.bank.query(points, self.rows[rows], with_colour=with_colour, block_size=block_size)

@@ -4,6 +4,12 @@ Each keyframe keeps its RGB-D image, pose and instance image. For every instance
 pixels where the instance was seen ("own" pixels: target occupancy 1, depth and colour supervised) and
 the pixels of other surfaces inside the instance's 2D box ("other" pixels: the space in front of that
 surface is free, so the instance must render occupancy 0 up to it).
+
+Memory is bounded: the images live in tensors pre-allocated for ``capacity`` keyframes (RGB as uint8),
+and once the buffer is full a new keyframe replaces an old one: the oldest (``policy="window"``, a
+sliding set as vMAP's) or a uniformly random one with probability capacity / keyframes seen
+(``policy="reservoir"``: the buffer stays a uniform sample of the whole history, so nothing the agent
+saw early is forgotten for good). A replaced keyframe's pixels leave every instance's pools.
 """
 
 from __future__ import annotations
@@ -17,6 +23,7 @@ from mapping.data import Frame
 
 MIN_MASK_PIXELS = 100  # OpenObj drops masks under 100 pixels
 BOX_MARGIN_PX = 10  # the 2D box of an instance is grown by this much to find "other" pixels
+KEYFRAME_POLICIES = ("reservoir", "window")
 
 
 @dataclass
@@ -38,65 +45,132 @@ class InstanceRays:
 
 
 @dataclass
-class _Pool:
-    """Pixel indices of several keyframes concatenated, with each keyframe's offset and size."""
+class _InstancePixels:
+    """Per keyframe slot, the flat pixel indices of one instance (own) and of other surfaces in its box."""
 
-    pixels: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
-    offsets: list[int] = field(default_factory=list)
-    sizes: list[int] = field(default_factory=list)
+    own: dict[int, np.ndarray] = field(default_factory=dict)
+    other: dict[int, np.ndarray] = field(default_factory=dict)
+    _packed: tuple | None = None
 
-    def append(self, px: np.ndarray) -> None:
-        self.offsets.append(len(self.pixels))
-        self.sizes.append(len(px))
-        self.pixels = np.concatenate([self.pixels, px.astype(np.int64)])
+    def put(self, slot: int, own: np.ndarray, other: np.ndarray) -> None:
+        self.own[slot], self.other[slot] = own.astype(np.int64), other.astype(np.int64)
+        self._packed = None
 
-    def draw(self, entries: np.ndarray, generator: np.random.Generator) -> np.ndarray:
-        """One random pixel of each listed keyframe entry (entries with an empty pool give -1)."""
-        sizes = np.asarray(self.sizes)[entries]
-        pick = np.asarray(self.offsets)[entries] + np.floor(generator.random(len(entries)) * sizes).astype(np.int64)
-        return np.where(sizes > 0, self.pixels[np.minimum(pick, max(len(self.pixels) - 1, 0))], -1)
+    def drop(self, slot: int) -> None:
+        if self.own.pop(slot, None) is not None:
+            self.other.pop(slot, None)
+            self._packed = None
+
+    def absorb(self, other: "_InstancePixels") -> None:
+        """Add another instance's pixels (two ids found to be one object)."""
+        for slot in set(self.own) | set(other.own):
+            own = np.concatenate([self.own.get(slot, np.zeros(0, np.int64)), other.own.get(slot, np.zeros(0, np.int64))])
+            rest = np.concatenate([self.other.get(slot, np.zeros(0, np.int64)),
+                                   other.other.get(slot, np.zeros(0, np.int64))])
+            self.own[slot], self.other[slot] = np.unique(own), np.setdiff1d(rest, own)
+        self._packed = None
+
+    def packed(self) -> tuple:
+        """(slots, own offsets, own sizes, own pixels, other offsets, other sizes, other pixels), cached."""
+        if self._packed is None:
+            slots = np.asarray(sorted(self.own), np.int64)
+            parts = []
+            for pools in (self.own, self.other):
+                sizes = np.asarray([len(pools[s]) for s in slots], np.int64)
+                offsets = np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(np.int64) if len(sizes) else sizes
+                pixels = np.concatenate([pools[s] for s in slots]) if len(slots) else np.zeros(0, np.int64)
+                parts += [offsets, sizes, pixels]
+            self._packed = (slots, *parts)
+        return self._packed
 
 
-@dataclass
-class _PixelIndex:
-    own: _Pool = field(default_factory=_Pool)
-    other: _Pool = field(default_factory=_Pool)
-    keyframes: list[int] = field(default_factory=list)
+def _draw(offsets: np.ndarray, sizes: np.ndarray, pixels: np.ndarray, entries: np.ndarray,
+          generator: np.random.Generator) -> np.ndarray:
+    """One random pixel of each listed entry (entries with an empty pool give -1)."""
+    size = sizes[entries]
+    pick = offsets[entries] + np.floor(generator.random(len(entries)) * size).astype(np.int64)
+    return np.where(size > 0, pixels[np.minimum(pick, max(len(pixels) - 1, 0))], -1)
 
 
 class KeyframeBuffer:
-    """Keyframes in memory as tensors, with per-instance pixel indices for sampling."""
+    """At most ``capacity`` keyframes in pre-allocated tensors, with per-instance pixel indices.
 
-    def __init__(self, device: torch.device | str = "cpu"):
+    Args:
+        device: where the images live.
+        capacity: keyframes kept at once.
+        policy: which keyframe a new one replaces when full: ``reservoir`` or ``window``.
+        seed: drives the reservoir's choices.
+    """
+
+    def __init__(self, device: torch.device | str = "cpu", capacity: int = 100, policy: str = "reservoir",
+                 seed: int = 0):
+        if capacity < 1:
+            raise ValueError(f"keyframe capacity must be >= 1, got {capacity}")
+        if policy not in KEYFRAME_POLICIES:
+            raise ValueError(f"unknown keyframe policy {policy!r}; choose one of {KEYFRAME_POLICIES}")
         self.device = torch.device(device)
-        self.rgb = torch.zeros(0, 0, 3, device=self.device)  # (K, H*W, 3) in [0, 1]
-        self.depth = torch.zeros(0, 0, device=self.device)  # (K, H*W) metres
-        self.poses = torch.zeros(0, 4, 4, device=self.device)  # (K, 4, 4) camera-to-world
+        self.capacity, self.policy = capacity, policy
+        self.rng = np.random.default_rng(seed)
+        self.rgb: torch.Tensor | None = None  # (capacity, H*W, 3) uint8
+        self.depth: torch.Tensor | None = None  # (capacity, H*W) metres
+        self.poses = torch.zeros(capacity, 4, 4, device=self.device)  # camera-to-world
         self.rays_cam: torch.Tensor | None = None  # (H*W, 3) camera directions, z = 1
-        self.index: dict[int, _PixelIndex] = {}
-        self.frame_indices: list[int] = []
+        self.index: dict[int, _InstancePixels] = {}
+        self.slot_frame: list[int] = []  # frame index held by each used slot
+        self.slot_instances: list[list[int]] = []
+        self.seen = 0  # keyframes ever offered
 
     def __len__(self) -> int:
-        return len(self.poses)
+        return len(self.slot_frame)
+
+    @property
+    def frame_indices(self) -> list[int]:
+        """Frame indices of the keyframes held now."""
+        return list(self.slot_frame)
+
+    def has_pixels(self, instance_id: int) -> bool:
+        """True when some held keyframe shows the instance (else it cannot be trained on data)."""
+        entry = self.index.get(instance_id)
+        return entry is not None and any(len(p) for p in entry.own.values())
+
+    def _allocate(self, h: int, w: int, k) -> None:
+        v, u = np.mgrid[0:h, 0:w]
+        cam = np.stack([(u - k.cx) / k.fx, (v - k.cy) / k.fy, np.ones_like(u, dtype=np.float64)], -1)
+        self.rays_cam = torch.as_tensor(cam.reshape(-1, 3), dtype=torch.float32, device=self.device)
+        self.rgb = torch.zeros(self.capacity, h * w, 3, dtype=torch.uint8, device=self.device)
+        self.depth = torch.zeros(self.capacity, h * w, device=self.device)
+
+    def _slot_for_new(self) -> int | None:
+        """The slot a new keyframe goes to (None: the reservoir keeps its sample unchanged)."""
+        if len(self.slot_frame) < self.capacity:
+            self.slot_frame.append(-1)
+            self.slot_instances.append([])
+            return len(self.slot_frame) - 1
+        if self.policy == "window":
+            return int(np.argmin(self.slot_frame)) if self.slot_frame else 0
+        j = int(self.rng.integers(self.seen))  # reservoir sampling (Algorithm R)
+        return j if j < self.capacity else None
 
     def add(self, frame: Frame, instance: np.ndarray) -> list[int]:
-        """Store a keyframe with its (corrected) instance image; returns the instance ids it indexed."""
+        """Store a keyframe with its (corrected) instance image; returns the instance ids it indexed
+        (empty when the reservoir kept its sample and the keyframe was not stored)."""
         k = frame.intrinsics
         h, w = frame.depth.shape
         if self.rays_cam is None:
-            v, u = np.mgrid[0:h, 0:w]
-            cam = np.stack([(u - k.cx) / k.fx, (v - k.cy) / k.fy, np.ones_like(u, dtype=np.float64)], -1)
-            self.rays_cam = torch.as_tensor(cam.reshape(-1, 3), dtype=torch.float32, device=self.device)
+            self._allocate(h, w, k)
         elif self.rays_cam.shape[0] != h * w:
             raise ValueError(f"frame {frame.index}: image size {w}x{h} differs from the earlier keyframes")
-        kf = len(self.poses)
-        rgb = torch.as_tensor(frame.rgb.reshape(1, -1, 3), device=self.device).float() / 255.0
-        depth = torch.as_tensor(frame.depth.reshape(1, -1), dtype=torch.float32, device=self.device)
-        pose = torch.as_tensor(frame.pose[None], dtype=torch.float32, device=self.device)
-        self.rgb = rgb if kf == 0 else torch.cat([self.rgb, rgb])
-        self.depth = depth if kf == 0 else torch.cat([self.depth, depth])
-        self.poses = torch.cat([self.poses, pose])
-        self.frame_indices.append(frame.index)
+        self.seen += 1
+        slot = self._slot_for_new()
+        if slot is None:
+            return []
+        for iid in self.slot_instances[slot]:  # the replaced keyframe's pixels leave the pools
+            if iid in self.index:
+                self.index[iid].drop(slot)
+        self.rgb[slot] = torch.as_tensor(np.ascontiguousarray(frame.rgb).reshape(-1, 3), device=self.device)
+        self.depth[slot] = torch.as_tensor(frame.depth.reshape(-1), dtype=torch.float32, device=self.device)
+        self.poses[slot] = torch.as_tensor(frame.pose, dtype=torch.float32, device=self.device)
+        self.slot_frame[slot] = frame.index
         valid = frame.depth > 0
         seen = []
         ids, counts = np.unique(instance[valid], return_counts=True)
@@ -110,12 +184,20 @@ class KeyframeBuffer:
             box = np.zeros_like(mask)
             box[r0:r1, c0:c1] = True
             other = box & ~mask & valid
-            entry = self.index.setdefault(iid, _PixelIndex())
-            entry.own.append(np.flatnonzero(mask))
-            entry.other.append(np.flatnonzero(other))
-            entry.keyframes.append(kf)
+            self.index.setdefault(iid, _InstancePixels()).put(slot, np.flatnonzero(mask), np.flatnonzero(other))
             seen.append(iid)
+        self.slot_instances[slot] = seen
         return seen
+
+    def merge_ids(self, source: int, target: int) -> None:
+        """Re-label ``source``'s pixels as ``target``'s (two ids found to be one object)."""
+        entry = self.index.pop(source, None)
+        if entry is None:
+            return
+        self.index.setdefault(target, _InstancePixels()).absorb(entry)
+        for ids in self.slot_instances:
+            if source in ids:
+                ids[:] = sorted(set(ids) - {source} | {target})
 
     def sample(self, instance_ids: list[int], n_rays: int, own_fraction: float, generator: np.random.Generator
                ) -> InstanceRays:
@@ -124,13 +206,17 @@ class KeyframeBuffer:
         n_own = int(round(n_rays * own_fraction))
         kf_all, px_all, own_all = [], [], []
         for iid in instance_ids:
-            entry = self.index[iid]
-            picks = generator.integers(len(entry.keyframes), size=n_rays)
-            own_px = entry.own.draw(picks, generator)
-            other_px = entry.other.draw(picks, generator)
-            own = (np.arange(n_rays) < n_own) | (other_px < 0)
-            kf_all.append(np.asarray(entry.keyframes)[picks])
-            px_all.append(np.where(own, own_px, other_px))
+            if not self.has_pixels(iid):
+                raise KeyError(f"instance {iid} has no pixels in the held keyframes (adopted or evicted); "
+                               "check has_pixels before sampling")
+            slots, own_off, own_size, own_px, oth_off, oth_size, oth_px = self.index[iid].packed()
+            picks = generator.integers(len(slots), size=n_rays)
+            own_draw = _draw(own_off, own_size, own_px, picks, generator)
+            other_draw = _draw(oth_off, oth_size, oth_px, picks, generator)
+            own = (np.arange(n_rays) < n_own) | (other_draw < 0)  # every kept slot has own pixels
+            px = np.where(own, own_draw, other_draw)
+            kf_all.append(slots[picks])
+            px_all.append(px)
             own_all.append(own)
         kf = torch.as_tensor(np.stack(kf_all), device=self.device)  # (N, R)
         px = torch.as_tensor(np.stack(px_all), device=self.device)  # (N, R)
@@ -140,6 +226,6 @@ class KeyframeBuffer:
             origins=poses[..., :3, 3],
             directions=directions,
             depth=self.depth[kf, px],
-            rgb=self.rgb[kf, px],
+            rgb=self.rgb[kf, px].float() / 255.0,
             own=torch.as_tensor(np.stack(own_all), device=self.device),
         )

@@ -101,12 +101,16 @@ def data_loss(rendered: RenderedRays, depth: Tensor, rgb: Tensor, instance_mask:
         depth: (..., R) observed depth (0 = none).
         rgb: (..., R, 3) observed colour in [0, 1].
         instance_mask: (..., R) m_bar, 1 on the instance's pixels (corrected masks, Sec. IV-B).
-        valid: (..., R) bool rays used by the occupancy term (default all).
+        valid: (..., R) bool rays to supervise at all (default all); depth and colour use
+            ``instance_mask & valid``.
         weights: lambda_1..3.
     """
     occ = occupancy_loss(rendered.occupancy, instance_mask, valid)
-    dep = depth_loss(rendered.depth, depth, instance_mask,
+    # depth and colour are supervised only on valid rays too (a ray that misses the box or whose
+    # surface lies before it says nothing about the instance's surface)
+    supervised = instance_mask.to(torch.bool) if valid is None else instance_mask.to(torch.bool) & valid
+    dep = depth_loss(rendered.depth, depth, supervised,
                      rendered.depth_variance if weights.depth_uncertainty else None)
-    col = colour_loss(rendered.colour, rgb, instance_mask) if rendered.colour is not None else occ.new_zeros(())
+    col = colour_loss(rendered.colour, rgb, supervised) if rendered.colour is not None else occ.new_zeros(())
     total = weights.occupancy * occ + weights.depth * dep + weights.colour * col
     return DataLoss(total, occ, dep, col)

@@ -173,6 +173,9 @@ def sample_along_rays(rays: RayBundle, depth: Tensor, own: Tensor | None = None,
     around = torch.where(own[..., None], around_own, around_other)
     no_depth = stratified(near_t, torch.maximum(far_t, near_t), config.n_stratified + config.n_surface, generator)
     depths = torch.where(valid[..., None], torch.cat([front, around], dim=-1), no_depth)
+    # The surface band may start before ``near`` (the box's entry, padded 5 cm, while the band is
+    # +-10 cm): sort so that eq. 6 composites the samples in depth order.
+    depths = depths.sort(dim=-1).values
     return RaySamples(depths, rays.at(depths), seen & (depth <= near_t))
 
 

@@ -63,3 +63,43 @@ def test_bad_checkpoints_and_frames_are_refused(tiny_world, tmp_path):
     frame.instance = None
     with pytest.raises(ValueError, match="instance image"):
         agent.ingest(frame)
+
+
+class _Payload:
+    """Stands for any pickled object; loading one could run code."""
+
+
+def test_a_checkpoint_carrying_a_pickled_object_is_refused(tmp_path):
+    path = tmp_path / "evil.pt"
+    torch.save({"format": "openmulti-checkpoint", "version": 1, "payload": {"x": _Payload()}}, path)
+    with pytest.raises(CheckpointError, match="refused: the checkpoint holds a pickled object"):
+        MappingAgent(device="cpu").load(path)
+
+
+def test_generators_live_on_the_mapping_device():
+    agent = MappingAgent(device="cpu")
+    assert agent.generator.device == agent.device
+    assert agent.init_generator.device.type == "cpu"
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
+def test_a_training_step_runs_on_cuda(tiny_world):
+    agent = MappingAgent(MappingConfig(keyframe_every=1), device="cuda")
+    assert agent.generator.device.type == "cuda"
+    frame = tiny_world.render(0, 0)
+    agent.ingest(frame)
+    assert np.isfinite(agent.train(2))
+
+
+def test_adopted_instances_are_not_trained_on_data_but_render(tiny_world):
+    agent, book = _one_instance_agent(tiny_world)
+    agent.train(50)
+    peer = MappingAgent(MappingConfig(keyframe_every=2), device="cpu", seed=1)
+    peer.adopt_instance(7, agent.export_instance(book.instance_id))
+    assert peer.trainable_ids("object") == []
+    peer.train(2)  # nothing to train on: no error, nothing changes
+    assert torch.equal(peer.banks["object"].params[0], agent.banks["object"].params[agent.slots[book.instance_id].row])
+    pose = tiny_world.agent_poses[0][0]
+    mine = agent.render_view(pose, tiny_world.intrinsics, stride=8)
+    theirs = peer.render_view(pose, tiny_world.intrinsics, stride=8)
+    assert torch.allclose(mine.depth, theirs.depth, atol=1e-5)

@@ -178,9 +178,32 @@ def test_get_set_instance_params_round_trip():
     assert torch.equal(bank.get_instance_params(2), vector)
     points = points_in_boxes(other, 16)
     bank.set_bounds([2], other.bound_min[1:2], other.bound_max[1:2])
+    bank.set_frames([2], other.frame_centre[1:2], other.frame_half[1:2])
     assert torch.allclose(bank(points[[1]], rows=torch.tensor([2])).occupancy, other(points)[0][1:2])
     with pytest.raises(ValueError):
         bank.set_instance_params(0, vector[:-1])
+
+
+def test_a_growing_box_does_not_stretch_the_learned_function():
+    bank = make_bank(2, seed=3)
+    points = points_in_boxes(bank, 32)
+    before = bank(points).occupancy
+    bank.set_bounds([0, 1], bank.bound_min - 0.3, bank.bound_max + torch.tensor([0.5, 0.1, 0.2]))
+    assert torch.equal(bank(points).occupancy, before)
+    assert float(bank.frame_coverage([0])[0]) > 1.0
+
+
+def test_refit_moves_a_network_to_another_frame_keeping_its_shape():
+    bank = make_bank(1, seed=4)
+    points = points_in_boxes(bank, 4000, seed=7)
+    before = bank(points).occupancy.detach()
+    centre, half = bank.frame_centre.clone() + 0.2, bank.frame_half.clone() * 1.5
+    diff = bank.refit_frames([0], centre, half, steps=300, generator=torch.Generator().manual_seed(0))
+    assert torch.allclose(bank.frame_centre, centre) and torch.allclose(bank.frame_half, half)
+    after = bank(points).occupancy.detach()
+    assert diff < 0.1
+    assert float((after - before).abs().mean()) < 0.1
+    assert float(((after > 0.5) == (before > 0.5)).float().mean()) > 0.9
 
 
 def test_structure_width_bank():
@@ -393,3 +416,28 @@ def test_mapping_field_modules_import_no_env_packages():
             "bad = [m for m in ('pettingzoo', 'gymnasium', 'pyrender', 'openmulti_env') if m in sys.modules]; "
             "assert not bad, bad")
     subprocess.run([sys.executable, "-c", code], check=True)
+
+
+def test_samples_are_in_depth_order_when_the_box_starts_inside_the_surface_band():
+    from mapping.render import RayBundle, sample_along_rays
+
+    rays = RayBundle(torch.zeros(64, 3), torch.tensor([[0.0, 0.0, 1.0]]).expand(64, 3).contiguous())
+    depth = torch.full((64,), 2.0)
+    near = torch.full((64,), 1.95)  # the box starts 5 cm before the surface; the band is +-10 cm
+    samples = sample_along_rays(rays, depth, near=near, far=torch.full((64,), 3.0),
+                                generator=torch.Generator().manual_seed(0))
+    assert bool(torch.all(samples.depths[:, 1:] >= samples.depths[:, :-1]))
+
+
+def test_depth_and_colour_losses_ignore_invalid_rays():
+    from mapping.losses import data_loss
+    from mapping.render import render_occupancy
+
+    occ = torch.tensor([[0.0, 0.0, 0.9], [0.0, 0.0, 0.9]])
+    depths = torch.tensor([[1.0, 1.5, 2.0], [1.0, 1.5, 2.0]])
+    rendered = render_occupancy(occ, torch.full((2, 3, 3), 0.5), depths)
+    depth, rgb, mask = torch.tensor([1.8, 50.0]), torch.tensor([[0.5] * 3, [0.0] * 3]), torch.ones(2)
+    only_first = data_loss(rendered, depth, rgb, mask, torch.tensor([True, False]))
+    first_ray = render_occupancy(occ[:1], torch.full((1, 3, 3), 0.5), depths[:1])
+    alone = data_loss(first_ray, depth[:1], rgb[:1], mask[:1])
+    assert torch.allclose(only_first.depth, alone.depth) and torch.allclose(only_first.colour, alone.colour)
