@@ -20,7 +20,7 @@ from mapping.bounds import InstanceBound
 from mapping.checkpoint import load_checkpoint, save_checkpoint
 from mapping.data import Frame, Intrinsics
 from mapping.evaluate import extract_instance_mesh, merge_instance_meshes
-from mapping.field import OBJECT_FIELD, STRUCTURE_FIELD, InstanceFieldBank, LiveRows, frame_for_box, resolve_device
+from mapping.field import OBJECT_FIELD, STRUCTURE_FIELD, InstanceFieldBank, LiveRows, resolve_device
 from mapping.optim import AdamConfig, StackedAdam
 from mapping.keyframes import KeyframeBuffer
 from mapping.losses import DataLossWeights, data_loss
@@ -187,8 +187,8 @@ class MappingAgent:
         bank = self.banks[slot.bank]
         bank.set_bounds([slot.row], torch.as_tensor(bound.lo[None]), torch.as_tensor(bound.hi[None]))
         if float(bank.frame_coverage([slot.row])[0]) > self.config.frame_limit:
-            centre, half = frame_for_box(torch.as_tensor(bound.lo[None], dtype=torch.float32),
-                                         torch.as_tensor(bound.hi[None], dtype=torch.float32))
+            centre, half = bank.default_frame(torch.as_tensor(bound.lo[None], dtype=torch.float32, device=bank.device),
+                                              torch.as_tensor(bound.hi[None], dtype=torch.float32, device=bank.device))
             frame = InstanceFrame(tuple(float(c) for c in centre[0]), float(half[0]), slot.frame_origin,
                                   slot.frame_version + 1)
             self.set_frame(iid, frame)

@@ -155,14 +155,17 @@ def mlp_flops_per_point(width: int) -> int:
     return sum(2 * i * o for i, o in layers)
 
 
-def frame_for_box(bound_min: Tensor, bound_max: Tensor) -> tuple[Tensor, Tensor]:
-    """The default frame of (k, 3) boxes: their centres (k, 3) and largest half-sides (k,).
+def frame_for_box(bound_min: Tensor, bound_max: Tensor, margin: float = 1.0, min_half_m: float = 0.0
+                  ) -> tuple[Tensor, Tensor]:
+    """The frame of (k, 3) boxes: their centres (k, 3) and half-sizes (k,) = max(margin x largest
+    half-side, min_half_m).
 
     Isotropic (one half-size for all axes), so a box growing along one axis never changes how the
-    network sees the others; the box fills the frame's cube along its longest side at creation and
-    may grow to ``frame_coverage`` 2 before the agent moves it to a larger frame.
+    network sees the others. The margin leaves room to grow: the agent moves an instance to a larger
+    frame (a refit) only when its box reaches ``MappingConfig.frame_limit`` of the frame's half-size.
     """
-    return (bound_min + bound_max) / 2.0, ((bound_max - bound_min) / 2.0).amax(-1)
+    half = (((bound_max - bound_min) / 2.0).amax(-1) * margin).clamp_min(min_half_m)
+    return (bound_min + bound_max) / 2.0, half
 
 
 @dataclass(frozen=True)
@@ -177,10 +180,15 @@ class FieldConfig:
     equally well (tests), 2 was marginally best."""
     occupancy_sharpness: float = 10.0
     """o = sigmoid(sharpness * raw) (vMAP's ``alpha = raw * 10``)."""
+    frame_margin: float = 1.5
+    """A new instance's frame half-size is this times its box's largest half-side ..."""
+    min_frame_half_m: float = 0.15
+    """... and at least this (walls and floors start as strips and grow to the room's size: their
+    bank uses a room-sized minimum, so they are rarely refit)."""
 
 
 OBJECT_FIELD = FieldConfig(hidden_width=32)
-STRUCTURE_FIELD = FieldConfig(hidden_width=128)
+STRUCTURE_FIELD = FieldConfig(hidden_width=128, min_frame_half_m=2.5)
 
 
 class FieldOutput(NamedTuple):
@@ -273,7 +281,7 @@ class InstanceFieldBank(nn.Module):
         bmax = torch.as_tensor(bound_max, dtype=torch.float32, device=self.device).reshape(k, 3)
         if not bool(torch.all(bmax > bmin)):
             raise ValueError("every bound_max must exceed bound_min on all three axes")
-        centre, half = frame_for_box(bmin, bmax)
+        centre, half = self.default_frame(bmin, bmax)
         if frame_centre is not None:
             centre = torch.as_tensor(frame_centre, dtype=torch.float32, device=self.device).reshape(k, 3)
         if frame_half is not None:
@@ -291,6 +299,10 @@ class InstanceFieldBank(nn.Module):
         self.frame_centre = torch.cat([self.frame_centre, centre])
         self.frame_half = torch.cat([self.frame_half, half])
         return list(range(start, start + k))
+
+    def default_frame(self, bound_min: Tensor, bound_max: Tensor) -> tuple[Tensor, Tensor]:
+        """This bank's frame for (k, 3) boxes (``frame_for_box`` with the config's margin and minimum)."""
+        return frame_for_box(bound_min, bound_max, self.config.frame_margin, self.config.min_frame_half_m)
 
     def frame_coverage(self, rows: Sequence[int] | Tensor | None = None) -> Tensor:
         """(n,) largest |u| of any box corner in its frame: 1 = the box just fills the frame's cube."""
@@ -500,7 +512,8 @@ class InstanceFieldBank(nn.Module):
     # ---- checkpoints -----------------------------------------------------------------------------
     def get_extra_state(self) -> dict:
         return {"hidden_width": self.config.hidden_width, "encoding_scale": self.config.encoding_scale,
-                "occupancy_sharpness": self.config.occupancy_sharpness}
+                "occupancy_sharpness": self.config.occupancy_sharpness, "frame_margin": self.config.frame_margin,
+                "min_frame_half_m": self.config.min_frame_half_m}
 
     def set_extra_state(self, state: dict) -> None:
         if state["hidden_width"] != self.config.hidden_width:

@@ -229,3 +229,40 @@ class KeyframeBuffer:
             rgb=self.rgb[kf, px].float() / 255.0,
             own=torch.as_tensor(np.stack(own_all), device=self.device),
         )
+
+    # ---- checkpoints -------------------------------------------------------------------------------
+    def state(self) -> dict:
+        """Images, poses and pixel pools as tensors and lists (for a weights-only checkpoint)."""
+        n = len(self.slot_frame)
+        return {
+            "capacity": self.capacity, "policy": self.policy, "seen": self.seen, "rng": self.rng.bit_generator.state,
+            "rgb": None if self.rgb is None else self.rgb[:n].cpu(), "depth": None if self.depth is None else self.depth[:n].cpu(),
+            "poses": self.poses[:n].cpu(), "rays_cam": None if self.rays_cam is None else self.rays_cam.cpu(),
+            "slot_frame": list(self.slot_frame), "slot_instances": [list(x) for x in self.slot_instances],
+            "index": {int(iid): {"own": {int(k): torch.as_tensor(v) for k, v in e.own.items()},
+                                 "other": {int(k): torch.as_tensor(v) for k, v in e.other.items()}}
+                      for iid, e in self.index.items()},
+        }
+
+    def restore(self, state: dict) -> None:
+        """Inverse of ``state``."""
+        if state["capacity"] != self.capacity:
+            raise ValueError(f"checkpoint keyframe capacity {state['capacity']} differs from {self.capacity}")
+        self.policy, self.seen = state["policy"], state["seen"]
+        self.rng.bit_generator.state = state["rng"]
+        self.slot_frame, self.slot_instances = list(state["slot_frame"]), [list(x) for x in state["slot_instances"]]
+        n = len(self.slot_frame)
+        if state["rays_cam"] is not None:
+            self.rays_cam = state["rays_cam"].to(self.device)
+            hw = self.rays_cam.shape[0]
+            self.rgb = torch.zeros(self.capacity, hw, 3, dtype=torch.uint8, device=self.device)
+            self.depth = torch.zeros(self.capacity, hw, device=self.device)
+            self.rgb[:n], self.depth[:n] = state["rgb"].to(self.device), state["depth"].to(self.device)
+        self.poses = torch.zeros(self.capacity, 4, 4, device=self.device)
+        self.poses[:n] = state["poses"].to(self.device)
+        self.index = {}
+        for iid, e in state["index"].items():
+            entry = _InstancePixels()
+            for k in e["own"]:
+                entry.put(int(k), e["own"][k].numpy(), e["other"][k].numpy())
+            self.index[int(iid)] = entry

@@ -1,0 +1,88 @@
+"""The communication channel: per-link success draws, an optional byte budget, and byte counts.
+
+Bytes are the length of each message's serialised form (``messages.to_bytes``). A message that is sent
+costs its sender its bytes whether it arrives or not (the radio spent them); only an arrived message
+counts as received. A sender whose budget would be exceeded does not send (``over_budget``, no bytes).
+Success draws come from one seeded generator, drawn in the order messages are offered, so a seed gives
+the same episode.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from mapping.team.messages import Message, from_bytes, to_bytes
+
+DELIVERED, DROPPED, OVER_BUDGET = "delivered", "dropped", "over_budget"
+
+
+@dataclass
+class Delivery:
+    """What happened to one message: ``status`` (delivered, dropped, over_budget), its bytes, and the
+    message as the receiver decodes it (None unless delivered)."""
+
+    sender: int
+    receiver: int
+    kind: str
+    status: str
+    bytes: int
+    message: Message | None
+
+
+class Channel:
+    """Links between ``num_agents`` agents.
+
+    Args:
+        num_agents: N.
+        success_probability: one probability for every link, or an (N, N) matrix (i -> j).
+        budget_bytes: bytes each agent may send over the episode (None: unlimited).
+        seed: drives the success draws.
+    """
+
+    def __init__(self, num_agents: int, success_probability: float | np.ndarray = 1.0,
+                 budget_bytes: float | None = None, seed: int = 0):
+        p = np.broadcast_to(np.asarray(success_probability, np.float64), (num_agents, num_agents)).copy()
+        if np.any(~np.isfinite(p)) or np.any(p < 0) or np.any(p > 1):
+            raise ValueError("success probabilities must lie in [0, 1]")
+        if budget_bytes is not None and not budget_bytes >= 0:
+            raise ValueError(f"budget_bytes must be >= 0 or None, got {budget_bytes}")
+        self.num_agents = num_agents
+        self.success = p
+        self.budget_bytes = budget_bytes
+        self.rng = np.random.default_rng(seed)
+        self.bytes_sent = np.zeros(num_agents, np.int64)
+        self.bytes_received = np.zeros(num_agents, np.int64)
+        self.link_bytes = np.zeros((num_agents, num_agents), np.int64)
+
+    def budget_left(self, agent: int) -> float:
+        """Bytes ``agent`` may still send (inf without a budget)."""
+        if self.budget_bytes is None:
+            return float("inf")
+        return max(0.0, self.budget_bytes - float(self.bytes_sent[agent]))
+
+    def transmit(self, message: Message) -> Delivery:
+        """Serialise, charge the sender, draw success, and decode on arrival."""
+        i, j = message.sender, message.receiver
+        if not (0 <= i < self.num_agents and 0 <= j < self.num_agents) or i == j:
+            raise ValueError(f"message from {i} to {j}: agents are 0..{self.num_agents - 1} and differ")
+        data = to_bytes(message)
+        if len(data) > self.budget_left(i):
+            return Delivery(i, j, message.kind, OVER_BUDGET, 0, None)
+        self.bytes_sent[i] += len(data)
+        self.link_bytes[i, j] += len(data)
+        if self.rng.random() >= self.success[i, j]:
+            return Delivery(i, j, message.kind, DROPPED, len(data), None)
+        self.bytes_received[j] += len(data)
+        return Delivery(i, j, message.kind, DELIVERED, len(data), from_bytes(data))
+
+    def state(self) -> dict:
+        return {"rng": self.rng.bit_generator.state, "bytes_sent": self.bytes_sent.tolist(),
+                "bytes_received": self.bytes_received.tolist(), "link_bytes": self.link_bytes.tolist()}
+
+    def restore(self, state: dict) -> None:
+        self.rng.bit_generator.state = state["rng"]
+        self.bytes_sent = np.asarray(state["bytes_sent"], np.int64)
+        self.bytes_received = np.asarray(state["bytes_received"], np.int64)
+        self.link_bytes = np.asarray(state["link_bytes"], np.int64)

@@ -1,0 +1,423 @@
+"""One agent of a team: its frames, online fusion, mapper, and what it holds from its peers.
+
+A member only ever shares ``messages`` with the others (no object crosses between members), so that
+one process per agent can come later. Per round (``Team.round`` calls these in order):
+``local_round`` (read the round's frames -> online fusion -> keyframes -> local iterations of the data
+loss, eq. 8-11), ``parameter_message`` / ``ray_message`` for the peers the plan names,
+``receive_parameters`` (hold, align on arrival, adopt), ``consistency_round`` (eq. 12 + eq. 13).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Protocol, Sequence
+
+import numpy as np
+import torch
+
+from mapping.agent import ExportedInstance, InstanceFrame, MappingAgent, MappingConfig
+from mapping.data.frame import Frame
+from mapping.field import InstanceFieldBank, LiveRows
+from mapping.fusion.online import OnlineFusion, OnlineFusionConfig
+from mapping.perception.codebook import CodeBook, CodeBookEntry
+from mapping.perception.types import FrameSegmentation
+from mapping.pointcloud import voxel_downsample
+from mapping.team.arrival import ArrivalConfig, ArrivalDecision, InstanceView, align_arrivals
+from mapping.team.consistency import (ConsistencyPairs, consensus_penalty, dinno_dual_update, dinno_penalty,
+                                      metropolis_mix)
+from mapping.team.cross_rendering import rays_of_message, render_consistency_loss
+from mapping.team.messages import InstancePayload, ParameterMessage, RayMessage
+
+
+class AgentStream(Protocol):
+    """An agent's frames in order: the simulator's renderer or a dataset, with the segmenter's masks."""
+
+    def __len__(self) -> int: ...
+
+    def read(self, index: int) -> tuple[Frame, FrameSegmentation]:
+        """Frame ``index`` and its segmentation (caption features filled)."""
+        ...
+
+
+@dataclass
+class Vocabulary:
+    """Category names with their encoded prompts; which of them are walls, floor, ceiling."""
+
+    names: list[str]
+    features: np.ndarray  # (C, d) unit rows
+    structure: frozenset[str] = frozenset({"wall", "floor", "ceiling"})
+
+    @staticmethod
+    def from_encoder(names: Sequence[str], text_encoder, structure: Sequence[str] = ("wall", "floor", "ceiling")
+                     ) -> "Vocabulary":
+        """Encode "a {name} in a room" for each name (the zero-shot prompt of ``evaluate.semantic``)."""
+        from mapping.evaluate.semantic import category_prompts  # noqa: PLC0415
+
+        names = list(dict.fromkeys(names))
+        features = np.asarray(text_encoder.encode(category_prompts(names)), np.float32)
+        features /= np.maximum(np.linalg.norm(features, axis=1, keepdims=True), 1e-12)
+        return Vocabulary(names, features, frozenset(structure))
+
+    def label(self, feature: np.ndarray) -> str:
+        """The zero-shot category of a caption feature (cosine to the prompts)."""
+        return self.names[int(np.argmax(self.features @ np.asarray(feature, np.float32)))]
+
+
+@dataclass(frozen=True)
+class ConsistencyConfig:
+    """How agents pull their maps together after an exchange."""
+
+    algorithm: str = "consensus"
+    """Parameter consistency (eq. 12): consensus (MACIM), dinno, dsgd or none."""
+    rho: float = 0.3
+    """Penalty weight (MACIM: 0.3; DiNNO: 0.3-0.5)."""
+    iterations: int = 5
+    """Consistency iterations per round (data loss + the terms below)."""
+    cross_rendering: bool = True
+    """Render consistency on the peers' shared rays (eq. 13)."""
+    render_weight: float = 1.0
+    """Weight of eq. 13 in the loss."""
+    rays_per_pose: int = 256
+    """Pixels replayed per shared pose."""
+    poses_per_message: int = 2
+    """Poses a ray message carries (the round's frames, evenly spread)."""
+    samples_per_box: int = 16
+    """Samples per crossed instance box when rendering shared rays."""
+
+
+@dataclass(frozen=True)
+class ExchangeConfig:
+    """What a parameter message carries."""
+
+    float16: bool = False
+    """Send network vectors and features as float16 (half the bytes)."""
+    changed_only: float | None = None
+    """Skip an instance whose parameters moved less than this (relative L2) since they last reached
+    that peer; None sends every instance every time."""
+    cloud_voxel_m: float = 0.02
+    """Voxel of the clouds sent for alignment."""
+    resend_cloud_growth: float = 2.0
+    """Send an instance's cloud again when it has grown this many times since it last went."""
+
+
+@dataclass(frozen=True)
+class TeamConfig:
+    """Everything that shapes a team's learning."""
+
+    mapping: MappingConfig = field(default_factory=MappingConfig)
+    fusion: OnlineFusionConfig = field(default_factory=OnlineFusionConfig)
+    arrival: ArrivalConfig = field(default_factory=ArrivalConfig)
+    consistency: ConsistencyConfig = field(default_factory=ConsistencyConfig)
+    exchange: ExchangeConfig = field(default_factory=ExchangeConfig)
+    frames_per_round: int = 5
+    """Frames each agent reads per round (``fast``: one keyframe per round)."""
+    alignment: bool = True
+    """Align arrived instances (False: every arrived instance is adopted, the ablation)."""
+
+
+@dataclass
+class LocalReport:
+    frames: list[int]
+    keyframes: int
+    loss: float
+    seconds: float
+
+
+class TeamMember:
+    """Agent ``index`` of a team (see the module docstring for the round's calls)."""
+
+    def __init__(self, index: int, stream: AgentStream, config: TeamConfig, vocabulary: Vocabulary, seed: int,
+                 device: str = "auto"):
+        self.index, self.stream, self.config, self.vocabulary = index, stream, config, vocabulary
+        self.labels: dict[int, str] = {}
+        self.mapper = MappingAgent(config.mapping, is_structure=lambda iid: self.labels.get(iid) in vocabulary.structure,
+                                   device=device, seed=seed, agent_index=index)
+        self.fusion = OnlineFusion(config.fusion)
+        self.next_frame = 0
+        self.max_frame_read = -1
+        self.meaning: dict[int, tuple[str, np.ndarray, float]] = {}  # own id -> a more confident peer's meaning
+        self.held: dict[int, dict[int, InstancePayload]] = {}  # peer -> peer id -> last payload
+        self.held_round: dict[int, int] = {}
+        self.peer_degrees: dict[int, int] = {}  # peer -> how many peers it sent to (DSGD)
+        self.matches: dict[int, dict[int, int]] = {}  # peer -> peer id -> own id
+        self.sent_vectors: dict[int, dict[int, np.ndarray]] = {}
+        self.sent_cloud_points: dict[int, dict[int, int]] = {}
+        self.duals: dict[str, torch.Tensor] = {}
+        self._shadow: dict[int, tuple[int, list]] = {}
+
+    @property
+    def name(self) -> str:
+        return f"agent_{self.index}"
+
+    @property
+    def done(self) -> bool:
+        return self.next_frame >= len(self.stream)
+
+    # ---- 1-3: perceive, fuse, local iterations ---------------------------------------------------
+    def local_round(self) -> LocalReport:
+        start = time.perf_counter()
+        stop = min(self.next_frame + self.config.frames_per_round, len(self.stream))
+        read = [self.stream.read(i) for i in range(self.next_frame, stop)]
+        self.max_frame_read = max(self.max_frame_read, stop - 1)
+        indices = list(range(self.next_frame, stop))
+        self.next_frame = stop
+        frames, segs = [f for f, _ in read], [s for _, s in read]
+        images = self.fusion.add_round(frames, segs)
+        for iid, inst in self.fusion.instances.items():
+            self.labels.setdefault(iid, self.vocabulary.label(inst.caption_feature))
+        keyframes = sum(self.mapper.ingest(frame, image) for frame, image in zip(frames, images))
+        loss = self.mapper.train(keyframes * self.config.mapping.iterations_per_keyframe) if keyframes else 0.0
+        return LocalReport(indices, keyframes, loss, time.perf_counter() - start)
+
+    # ---- 4: messages -----------------------------------------------------------------------------
+    def parameter_message(self, receiver: int, round_index: int, degree: int) -> ParameterMessage:
+        ex = self.config.exchange
+        sent = self.sent_vectors.setdefault(receiver, {})
+        clouds = self.sent_cloud_points.setdefault(receiver, {})
+        payloads = []
+        for iid in self.mapper.live_ids():
+            inst = self.mapper.export_instance(iid)
+            last = sent.get(iid)
+            if ex.changed_only is not None and last is not None and iid in clouds and (
+                    np.linalg.norm(inst.params - last) <= ex.changed_only * max(np.linalg.norm(last), 1e-12)):
+                continue
+            fused = self.fusion.instances.get(iid)
+            cloud = None
+            if fused is not None and len(fused.points) and (
+                    iid not in clouds or len(fused.points) >= ex.resend_cloud_growth * clouds[iid]):
+                cloud = voxel_downsample(fused.points, ex.cloud_voxel_m).astype(np.float32)
+                clouds[iid] = len(fused.points)
+            entry = self.entry(iid)
+            dtype = np.float16 if ex.float16 else np.float32
+            payloads.append(InstancePayload(
+                iid, inst.bank, inst.params.astype(dtype), inst.bound_lo.astype(np.float32),
+                inst.bound_hi.astype(np.float32), np.asarray(inst.frame.centre, np.float32), inst.frame.half,
+                inst.frame.origin, inst.frame.version, entry.caption, entry.caption_feature.astype(dtype),
+                entry.confidence, cloud))
+            sent[iid] = inst.params
+        return ParameterMessage(self.index, receiver, round_index, payloads, degree)
+
+    def ray_message(self, receiver: int, round_index: int, seed: int) -> RayMessage | None:
+        """The poses of this round's frames (at most ``poses_per_message``) and a pixel seed."""
+        if self.max_frame_read < 0:
+            return None
+        c = self.config.consistency
+        first = max(0, self.next_frame - self.config.frames_per_round)
+        picks = np.unique(np.linspace(first, self.next_frame - 1, c.poses_per_message).round().astype(int))
+        frames = [self.stream.read(int(i))[0] for i in picks]
+        k = frames[0].intrinsics
+        return RayMessage(self.index, receiver, round_index, np.stack([f.pose for f in frames]).astype(np.float32),
+                          (k.fx, k.fy, k.cx, k.cy, k.width, k.height), seed, c.rays_per_pose)
+
+    # ---- 5: arrival ------------------------------------------------------------------------------
+    def receive_parameters(self, message: ParameterMessage) -> dict:
+        """Hold the peer's instances; align the newly described ones (match / merge / adopt); agree on
+        frames and grow boxes for matched ones. Returns counts of what happened."""
+        peer = message.sender
+        held = self.held.setdefault(peer, {})
+        matches = self.matches.setdefault(peer, {})
+        for inst in message.instances:
+            held[inst.instance_id] = inst
+        self.held_round[peer] = message.round
+        self.peer_degrees[peer] = message.degree
+        counts = {"adopted": 0, "matched": 0, "merged": 0}
+        new = {i.instance_id: i for i in message.instances if i.cloud is not None and i.instance_id not in matches}
+        if self.config.alignment:
+            own = {iid: InstanceView(inst.points, inst.caption_feature, inst.confidence)
+                   for iid, inst in self.fusion.instances.items()}
+            arrived = {pid: InstanceView(p.cloud.astype(np.float64), p.caption_feature.astype(np.float32),
+                                         p.confidence) for pid, p in new.items()}
+            decisions = align_arrivals(own, arrived, self.config.arrival)
+        else:
+            decisions = [ArrivalDecision(pid, "adopt") for pid in sorted(new)]
+        for d in decisions:
+            payload = new[d.peer_id]
+            if d.kind == "adopt":
+                own_id = self.fusion.add_instance(payload.cloud.astype(np.float64), payload.caption,
+                                                  payload.caption_feature.astype(np.float32), payload.confidence)
+                self.labels[own_id] = self.vocabulary.label(payload.caption_feature.astype(np.float32))
+                self.mapper.adopt_instance(own_id, _exported(payload))
+                counts["adopted"] += 1
+            else:
+                own_id = d.own_id
+                for piece in d.merged:
+                    self._merge(piece, own_id)
+                    counts["merged"] += 1
+                if own_id not in self.mapper.slots:  # seen in a non-keyframe only: start from the peer's network
+                    self.mapper.adopt_instance(own_id, _exported(payload))
+                if d.take_meaning:
+                    self.meaning[own_id] = (payload.caption, payload.caption_feature.astype(np.float32),
+                                            payload.confidence)
+                counts["matched"] += 1
+            matches[d.peer_id] = own_id
+        for inst in message.instances:
+            self._agree(matches.get(inst.instance_id), inst)
+        return counts
+
+    def _merge(self, piece: int, target: int) -> None:
+        if piece in self.fusion.instances and target in self.fusion.instances:
+            self.fusion.merge(piece, target)
+        if piece in self.mapper.slots and target in self.mapper.slots:
+            self.mapper.merge_instances(piece, target)
+        for table in self.matches.values():
+            for pid, own in table.items():
+                if own == piece:
+                    table[pid] = target
+
+    def _agree(self, own_id: int | None, payload: InstancePayload) -> None:
+        """A matched instance covers the peer's box too, and both sides converge on one frame."""
+        slot = self.mapper.slots.get(own_id) if own_id is not None else None
+        if slot is None or not slot.alive or slot.bank != payload.bank:
+            return
+        from mapping.bounds import InstanceBound  # noqa: PLC0415
+
+        self.mapper.grow_bound(own_id, InstanceBound(payload.bound_lo.astype(np.float64),
+                                                     payload.bound_hi.astype(np.float64)))
+        theirs = _frame(payload)
+        mine = self.mapper.frame_of(own_id)
+        if theirs.same_as(mine) or not theirs.better_than(mine):
+            return
+        bank = self.mapper.banks[slot.bank]
+        c, h = torch.tensor(theirs.centre, device=bank.device), theirs.half
+        lo, hi = bank.bound_min[slot.row], bank.bound_max[slot.row]
+        coverage = float(torch.maximum((lo - c).abs(), (hi - c).abs()).max()) / h
+        if coverage > self.config.mapping.frame_limit:  # my box does not fit: enlarge, keep its provenance
+            centre, half = bank.default_frame(lo[None], hi[None])
+            c = centre[0].tolist()
+            theirs = InstanceFrame((c[0], c[1], c[2]), float(half[0]), theirs.origin, theirs.version + 1)
+        self.mapper.set_frame(own_id, theirs)
+
+    # ---- 6: consistency iterations ---------------------------------------------------------------
+    def consistency_round(self, ray_messages: Sequence[RayMessage]) -> dict:
+        """Data loss + parameter consistency (eq. 12) + render consistency (eq. 13) iterations."""
+        c = self.config.consistency
+        start = time.perf_counter()
+        pairs = {name: self._pairs(name) for name in self.mapper.banks}
+        anchors = {name: bank.params.detach().clone() for name, bank in self.mapper.banks.items()}
+        if c.algorithm == "dinno":
+            for name, bank in self.mapper.banks.items():
+                dual = self.duals.get(name)
+                if dual is None or dual.shape != bank.params.shape:
+                    grown = torch.zeros_like(bank.params.detach())
+                    if dual is not None:
+                        grown[:len(dual)] = dual
+                    dual = grown
+                self.duals[name] = dinno_dual_update(dual, bank.params, pairs[name], c.rho)
+        elif c.algorithm == "dsgd":
+            for name, bank in self.mapper.banks.items():
+                with torch.no_grad():
+                    bank.params.copy_(metropolis_mix(bank.params, pairs[name]))
+        rays = [rays_of_message(m, self.mapper.device) for m in ray_messages if m.sender in self.held] \
+            if c.cross_rendering else []
+        senders = [m.sender for m in ray_messages if m.sender in self.held] if c.cross_rendering else []
+        terms = {"parameter": 0.0, "render": 0.0, "render_rays": 0}
+        n_pairs = sum(len(p) for p in pairs.values())
+        if n_pairs == 0 and not rays:
+            return {**terms, "pairs": 0, "seconds": time.perf_counter() - start}
+
+        def extra() -> torch.Tensor:
+            total = torch.zeros((), device=self.mapper.device)
+            for name, bank in self.mapper.banks.items():
+                if c.algorithm == "consensus":
+                    total = total + consensus_penalty(bank.params, anchors[name], pairs[name], c.rho)
+                elif c.algorithm == "dinno":
+                    total = total + dinno_penalty(bank.params, anchors[name], self.duals[name], pairs[name], c.rho)
+            terms["parameter"] = float(total.detach())
+            render = torch.zeros((), device=self.mapper.device)
+            used = 0
+            own_fields = self._own_fields()
+            for sender, bundle in zip(senders, rays):
+                loss, n = render_consistency_loss(own_fields, self._peer_fields(sender), bundle, c.samples_per_box)
+                render, used = render + loss, used + n
+            terms["render"], terms["render_rays"] = float(render.detach()), used
+            return total + c.render_weight * render
+
+        loss = self.mapper.train(c.iterations, extra) if c.iterations else 0.0
+        return {**terms, "loss": loss, "pairs": n_pairs, "seconds": time.perf_counter() - start}
+
+    def _pairs(self, bank_name: str) -> ConsistencyPairs:
+        """(own row, peer vector) of every instance both hold in one frame, one peer vector per own row
+        and peer (the peer's instance with the largest box when several match one of mine)."""
+        rows, vectors, peers, by_row = [], [], [], {}
+        bank = self.mapper.banks[bank_name]
+        chosen: dict[tuple[int, int], InstancePayload] = {}
+        for peer, table in self.matches.items():
+            for pid, own in table.items():
+                slot = self.mapper.slots.get(own)
+                payload = self.held.get(peer, {}).get(pid)
+                if slot is None or payload is None or not slot.alive or slot.bank != bank_name:
+                    continue
+                if not _frame(payload).same_as(self.mapper.frame_of(own)):
+                    continue
+                key = (peer, own)
+                size = float(np.prod(payload.bound_hi - payload.bound_lo))
+                if key not in chosen or size > float(np.prod(chosen[key].bound_hi - chosen[key].bound_lo)):
+                    chosen[key] = payload
+        for (peer, own), payload in sorted(chosen.items()):
+            row = self.mapper.slots[own].row
+            rows.append(row)
+            vectors.append(torch.as_tensor(payload.params.astype(np.float32)))
+            peers.append(self.peer_degrees.get(peer, 1))
+            by_row[row] = by_row.get(row, 0) + 1
+        dev = bank.device
+        if not rows:
+            empty = torch.zeros(0, dtype=torch.long, device=dev)
+            return ConsistencyPairs(empty, torch.zeros(0, bank.param_dim, device=dev), empty, empty)
+        return ConsistencyPairs(torch.as_tensor(rows, device=dev), torch.stack(vectors).to(dev),
+                                torch.as_tensor(peers, device=dev), torch.as_tensor([by_row[r] for r in rows], device=dev))
+
+    def _own_fields(self) -> list:
+        out = []
+        for name, bank in self.mapper.banks.items():
+            rows = sorted(s.row for s in self.mapper.slots.values() if s.bank == name and s.alive)
+            if rows:
+                out.append(LiveRows(bank, rows))
+        return out
+
+    def _peer_fields(self, peer: int) -> list[InstanceFieldBank]:
+        """The peer's map as I hold it (its last parameters), rebuilt when new ones came in."""
+        key = self.held_round.get(peer, -1)
+        cached = self._shadow.get(peer)
+        if cached is not None and cached[0] == key:
+            return cached[1]
+        fields = []
+        for name, own_bank in self.mapper.banks.items():
+            items = [p for p in self.held.get(peer, {}).values() if p.bank == name]
+            if not items:
+                continue
+            bank = InstanceFieldBank(own_bank.config, own_bank.device)
+            bank.add_instances(len(items), torch.as_tensor(np.stack([p.bound_lo for p in items])),
+                               torch.as_tensor(np.stack([p.bound_hi for p in items])),
+                               frame_centre=torch.as_tensor(np.stack([p.frame_centre for p in items])),
+                               frame_half=torch.as_tensor([p.frame_half for p in items]),
+                               params=torch.as_tensor(np.stack([p.params.astype(np.float32) for p in items])))
+            bank.requires_grad_(False)
+            fields.append(bank)
+        self._shadow[peer] = (key, fields)
+        return fields
+
+    # ---- outputs ---------------------------------------------------------------------------------
+    def entry(self, iid: int) -> CodeBookEntry:
+        """The instance's code-book entry (a more confident peer's meaning when alignment gave one)."""
+        inst = self.fusion.instances.get(iid)
+        if iid in self.meaning:
+            caption, feature, confidence = self.meaning[iid]
+            return CodeBookEntry(caption, feature, None, max(confidence, inst.confidence if inst else 0.0))
+        if inst is None:
+            raise KeyError(f"{self.name} has no instance {iid}")
+        return CodeBookEntry(inst.caption, inst.caption_feature, None, inst.confidence)
+
+    def codebook(self) -> CodeBook:
+        return CodeBook({iid: self.entry(iid) for iid in self.mapper.live_ids() if iid in self.fusion.instances})
+
+
+def _frame(payload: InstancePayload) -> InstanceFrame:
+    c = [float(x) for x in payload.frame_centre]
+    return InstanceFrame((c[0], c[1], c[2]), float(payload.frame_half), int(payload.frame_origin),
+                         int(payload.frame_version))
+
+
+def _exported(payload: InstancePayload) -> ExportedInstance:
+    return ExportedInstance(payload.instance_id, payload.bank, payload.params.astype(np.float32),
+                            payload.bound_lo.astype(np.float64), payload.bound_hi.astype(np.float64), _frame(payload))

@@ -1,0 +1,182 @@
+"""What agents send each other, and its real serialised form (bytes are counted as ``len(to_bytes())``).
+
+Two kinds, as the paper's exchange (sec. III-D):
+- ``ParameterMessage``: per instance, its network vector, box, frame and code-book entry, and, the
+  first time that instance goes to that peer (or after its cloud grew), its down-sampled point cloud
+  for the Cross-Agent Instance Alignment.
+- ``RayMessage``: the camera poses of the sender's current frames and a sampling seed the receiver
+  replays to get the same pixels (never depth: the receiver renders the peer's depth itself with the
+  peer's parameters, eq. 13).
+
+Wire format (one function pair for both kinds): ``b"OMMSG"``, a version byte, a uint32 header length,
+a UTF-8 JSON header (scalars, and for each array its name, dtype, shape and offset), then the arrays'
+raw little-endian bytes. Parameters may travel as float16 (``encode_params``).
+"""
+
+from __future__ import annotations
+
+import json
+import struct
+from dataclasses import dataclass, field
+
+import numpy as np
+
+MAGIC = b"OMMSG"
+VERSION = 1
+_DTYPES = {"float16", "float32", "float64", "int32", "int64", "uint8"}
+
+
+class MessageError(ValueError):
+    """Bytes that are not a message of this version (truncated, corrupt, or of another kind)."""
+
+
+@dataclass
+class InstancePayload:
+    """One instance as it travels.
+
+    Attributes:
+        instance_id: the sender's id for it.
+        bank: ``object`` or ``structure`` (network width).
+        params: (D,) float16 or float32 network vector.
+        bound_lo, bound_hi: (3,) float32 box.
+        frame_centre: (3,) float32; ``frame_half``, ``frame_origin``, ``frame_version``: its frame.
+        caption, caption_feature ((d,) float16/32), confidence: its code-book entry.
+        cloud: (P, 3) float32 down-sampled points, or None (already sent).
+    """
+
+    instance_id: int
+    bank: str
+    params: np.ndarray
+    bound_lo: np.ndarray
+    bound_hi: np.ndarray
+    frame_centre: np.ndarray
+    frame_half: float
+    frame_origin: int
+    frame_version: int
+    caption: str
+    caption_feature: np.ndarray
+    confidence: float
+    cloud: np.ndarray | None = None
+
+
+@dataclass
+class ParameterMessage:
+    """Sender's instances for one receiver in one round; ``degree`` = how many peers the sender sent
+    parameters to this round (DSGD's Metropolis weights need it)."""
+
+    sender: int
+    receiver: int
+    round: int
+    instances: list[InstancePayload] = field(default_factory=list)
+    degree: int = 1
+    kind = "params"
+
+
+@dataclass
+class RayMessage:
+    """The sender's current camera poses ((F, 4, 4) float32, camera-to-world), its intrinsics
+    (fx, fy, cx, cy, width, height), and the seed and count of the pixels to replay per pose."""
+
+    sender: int
+    receiver: int
+    round: int
+    poses: np.ndarray
+    intrinsics: tuple[float, float, float, float, int, int]
+    seed: int
+    rays_per_pose: int
+    kind = "rays"
+
+
+Message = ParameterMessage | RayMessage
+
+
+def replay_pixels(message: RayMessage) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The pixels a ray message stands for: (M,) pose index, (M,) u and (M,) v, M = poses x count.
+
+    Sender and receiver both call this: the seed fixes the pixels, so only the seed travels."""
+    width, height = int(message.intrinsics[4]), int(message.intrinsics[5])
+    rng = np.random.default_rng(message.seed)
+    n = len(message.poses) * message.rays_per_pose
+    pose = np.repeat(np.arange(len(message.poses)), message.rays_per_pose)
+    return pose, rng.integers(0, width, n), rng.integers(0, height, n)
+
+
+# ---- wire format -------------------------------------------------------------------------------------
+def _pack(kind: str, scalars: dict, arrays: dict[str, np.ndarray]) -> bytes:
+    table, blobs, offset = [], [], 0
+    for name, array in arrays.items():
+        a = np.ascontiguousarray(array)
+        if a.dtype.name not in _DTYPES:
+            raise TypeError(f"array {name}: dtype {a.dtype} cannot travel")
+        blob = a.astype(a.dtype.newbyteorder("<"), copy=False).tobytes()
+        table.append([name, a.dtype.name, list(a.shape), offset])
+        blobs.append(blob)
+        offset += len(blob)
+    header = json.dumps({"kind": kind, "scalars": scalars, "arrays": table}, separators=(",", ":")).encode()
+    return MAGIC + bytes([VERSION]) + struct.pack("<I", len(header)) + header + b"".join(blobs)
+
+
+def _unpack(data: bytes) -> tuple[str, dict, dict[str, np.ndarray]]:
+    if len(data) < len(MAGIC) + 5 or not data.startswith(MAGIC):
+        raise MessageError("not an OpenMulti message (bad magic)")
+    if data[len(MAGIC)] != VERSION:
+        raise MessageError(f"message version {data[len(MAGIC)]}, this code reads {VERSION}")
+    start = len(MAGIC) + 1
+    (n,) = struct.unpack("<I", data[start:start + 4])
+    try:
+        header = json.loads(data[start + 4:start + 4 + n].decode())
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise MessageError(f"corrupt message header ({exc})") from None
+    body = memoryview(data)[start + 4 + n:]
+    arrays = {}
+    for name, dtype, shape, offset in header["arrays"]:
+        dt = np.dtype(dtype).newbyteorder("<")
+        size = int(np.prod(shape)) * dt.itemsize
+        if offset + size > len(body):
+            raise MessageError(f"truncated message (array {name})")
+        arrays[name] = np.frombuffer(body[offset:offset + size], dtype=dt).reshape(shape).astype(dtype)
+    return header["kind"], header["scalars"], arrays
+
+
+def to_bytes(message: Message) -> bytes:
+    """The message's serialised form (what a radio would carry)."""
+    base = {"sender": message.sender, "receiver": message.receiver, "round": message.round}
+    if isinstance(message, RayMessage):
+        return _pack("rays", {**base, "intrinsics": list(message.intrinsics), "seed": int(message.seed),
+                              "rays_per_pose": int(message.rays_per_pose)},
+                     {"poses": np.asarray(message.poses, np.float32)})
+    scalars = {**base, "degree": message.degree, "instances": []}
+    arrays = {}
+    for k, inst in enumerate(message.instances):
+        scalars["instances"].append({"id": inst.instance_id, "bank": inst.bank, "half": float(inst.frame_half),
+                                     "origin": inst.frame_origin, "version": inst.frame_version,
+                                     "caption": inst.caption, "confidence": float(inst.confidence),
+                                     "cloud": inst.cloud is not None})
+        arrays[f"{k}.params"] = inst.params
+        arrays[f"{k}.box"] = np.concatenate([inst.bound_lo, inst.bound_hi, inst.frame_centre]).astype(np.float32)
+        arrays[f"{k}.feature"] = inst.caption_feature
+        if inst.cloud is not None:
+            arrays[f"{k}.cloud"] = np.asarray(inst.cloud, np.float32)
+    return _pack("params", scalars, arrays)
+
+
+def from_bytes(data: bytes) -> Message:
+    """Inverse of ``to_bytes`` (MessageError on anything else)."""
+    kind, s, a = _unpack(bytes(data))
+    try:
+        if kind == "rays":
+            fx, fy, cx, cy, w, h = s["intrinsics"]
+            return RayMessage(s["sender"], s["receiver"], s["round"], a["poses"], (fx, fy, cx, cy, int(w), int(h)),
+                              s["seed"], s["rays_per_pose"])
+        if kind != "params":
+            raise MessageError(f"unknown message kind {kind!r}")
+        instances = []
+        for k, meta in enumerate(s["instances"]):
+            box = a[f"{k}.box"]
+            instances.append(InstancePayload(meta["id"], meta["bank"], a[f"{k}.params"], box[:3], box[3:6], box[6:9],
+                                             meta["half"], meta["origin"], meta["version"], meta["caption"],
+                                             a[f"{k}.feature"], meta["confidence"],
+                                             a[f"{k}.cloud"] if meta["cloud"] else None))
+        return ParameterMessage(s["sender"], s["receiver"], s["round"], instances, s["degree"])
+    except (KeyError, ValueError, TypeError) as exc:
+        raise MessageError(f"corrupt message body ({type(exc).__name__}: {exc})") from None

@@ -1,0 +1,57 @@
+"""A team member's state as tensors, numbers, strings, lists and dicts (a weights-only checkpoint)."""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from mapping.team.member import TeamMember
+from mapping.team.messages import InstancePayload
+
+
+def _payload_state(p: InstancePayload) -> dict:
+    return {"id": p.instance_id, "bank": p.bank, "params": torch.as_tensor(p.params), "lo": torch.as_tensor(p.bound_lo),
+            "hi": torch.as_tensor(p.bound_hi), "centre": torch.as_tensor(p.frame_centre), "half": float(p.frame_half),
+            "origin": p.frame_origin, "version": p.frame_version, "caption": p.caption,
+            "feature": torch.as_tensor(p.caption_feature), "confidence": float(p.confidence),
+            "cloud": None if p.cloud is None else torch.as_tensor(p.cloud)}
+
+
+def _payload(s: dict) -> InstancePayload:
+    return InstancePayload(s["id"], s["bank"], s["params"].numpy(), s["lo"].numpy(), s["hi"].numpy(),
+                           s["centre"].numpy(), s["half"], s["origin"], s["version"], s["caption"],
+                           s["feature"].numpy(), s["confidence"], None if s["cloud"] is None else s["cloud"].numpy())
+
+
+def member_state(m: TeamMember) -> dict:
+    """Everything a member holds, for ``Team.save``."""
+    return {
+        "mapper": m.mapper.state(), "keyframes": m.mapper.keyframes.state(), "fusion": m.fusion.state(),
+        "next_frame": m.next_frame, "max_frame_read": m.max_frame_read, "labels": {int(k): v for k, v in m.labels.items()},
+        "meaning": {int(k): [c, torch.as_tensor(f), float(conf)] for k, (c, f, conf) in m.meaning.items()},
+        "held": {int(p): {int(i): _payload_state(x) for i, x in t.items()} for p, t in m.held.items()},
+        "held_round": {int(k): int(v) for k, v in m.held_round.items()},
+        "peer_degrees": {int(k): int(v) for k, v in m.peer_degrees.items()},
+        "matches": {int(p): {int(i): int(o) for i, o in t.items()} for p, t in m.matches.items()},
+        "sent_vectors": {int(p): {int(i): torch.as_tensor(v) for i, v in t.items()} for p, t in m.sent_vectors.items()},
+        "sent_cloud_points": {int(p): {int(i): int(v) for i, v in t.items()} for p, t in m.sent_cloud_points.items()},
+        "duals": {k: v.cpu() for k, v in m.duals.items()},
+    }
+
+
+def restore_member(m: TeamMember, s: dict) -> None:
+    """Inverse of ``member_state``."""
+    m.mapper.restore(s["mapper"])
+    m.mapper.keyframes.restore(s["keyframes"])
+    m.fusion.restore(s["fusion"])
+    m.next_frame, m.max_frame_read = s["next_frame"], s["max_frame_read"]
+    m.labels = {int(k): v for k, v in s["labels"].items()}
+    m.meaning = {int(k): (c, f.numpy(), conf) for k, (c, f, conf) in s["meaning"].items()}
+    m.held = {int(p): {int(i): _payload(x) for i, x in t.items()} for p, t in s["held"].items()}
+    m.held_round = dict(s["held_round"])
+    m.peer_degrees = dict(s["peer_degrees"])
+    m.matches = {int(p): dict(t) for p, t in s["matches"].items()}
+    m.sent_vectors = {int(p): {int(i): np.asarray(v.numpy()) for i, v in t.items()} for p, t in s["sent_vectors"].items()}
+    m.sent_cloud_points = {int(p): dict(t) for p, t in s["sent_cloud_points"].items()}
+    m.duals = {k: v.to(m.mapper.device) for k, v in s["duals"].items()}
+    m._shadow = {}

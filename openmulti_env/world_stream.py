@@ -1,0 +1,43 @@
+"""An agent's frames from the simulated world as a ``mapping.team.AgentStream``: render -> segment
+(the seeded error model) -> caption features, frame by frame, only when the team asks for the frame."""
+
+from __future__ import annotations
+
+from collections import OrderedDict
+
+from mapping.data import Frame
+from mapping.perception import FrameSegmentation, TextEncoder
+from mapping.perception.front_end import encode_segments
+from mapping.perception.image_encoder import ImageTextEncoder
+from mapping.perception.segmenter import OracleSegmenter
+from openmulti_env.world.world import World
+
+
+class WorldStream:
+    """Agent ``agent``'s path through ``world``; the last ``cache`` frames are kept (a ray message
+    re-reads the round's poses)."""
+
+    def __init__(self, world: World, agent: int, segmenter: OracleSegmenter, text_encoder: TextEncoder,
+                 image_encoder: ImageTextEncoder | None = None, cache: int = 16):
+        self.world, self.agent, self.segmenter = world, agent, segmenter
+        self.text_encoder, self.image_encoder = text_encoder, image_encoder
+        self.cache = cache
+        self._frames: OrderedDict[int, tuple[Frame, FrameSegmentation]] = OrderedDict()
+        self.max_index_read = -1
+
+    def __len__(self) -> int:
+        return len(self.world.agent_poses[self.agent])
+
+    def read(self, index: int) -> tuple[Frame, FrameSegmentation]:
+        if not 0 <= index < len(self):
+            raise IndexError(f"agent_{self.agent} has frames 0..{len(self) - 1}, not {index}")
+        if index in self._frames:
+            self._frames.move_to_end(index)
+            return self._frames[index]
+        frame = self.world.render(self.agent, index)
+        seg = encode_segments(self.segmenter.segment(frame), frame, self.text_encoder, self.image_encoder)
+        self.max_index_read = max(self.max_index_read, index)
+        self._frames[index] = (frame, seg)
+        while len(self._frames) > self.cache:
+            self._frames.popitem(last=False)
+        return frame, seg

@@ -1,0 +1,260 @@
+"""The collaborative learner: messages, channel, consistency algorithms, eq. 13, arrival, rounds."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+import torch
+
+from mapping.agent import MappingConfig
+from mapping.field import OBJECT_FIELD, InstanceFieldBank
+from mapping.optim import AdamConfig, StackedAdam
+from mapping.render import RayBundle, camera_rays
+from mapping.data.frame import Intrinsics
+from mapping.team import (Channel, ChannelConfig, ConsistencyConfig, InstancePayload, MessageError, ParameterMessage,
+                          PlanError, RayMessage, RoundPlan, Team, TeamConfig, from_bytes, to_bytes)
+from mapping.team.arrival import InstanceView, align_arrivals
+from mapping.team.consistency import (ConsistencyPairs, consensus_penalty, dinno_dual_update, dinno_penalty,
+                                      metropolis_mix)
+from mapping.team.cross_rendering import render_consistency_loss
+
+
+def _payload(iid=3, cloud=True, dtype=np.float32):
+    rng = np.random.default_rng(iid)
+    return InstancePayload(iid, "object", rng.normal(size=50).astype(dtype), np.zeros(3, np.float32),
+                           np.ones(3, np.float32), np.full(3, 0.5, np.float32), 0.75, 1, 2, "a red mug",
+                           rng.normal(size=8).astype(dtype), 0.4, rng.normal(size=(20, 3)).astype(np.float32) if cloud else None)
+
+
+# ---- messages and channel ----------------------------------------------------------------------------
+def test_messages_round_trip_and_bytes_are_their_serialised_length():
+    msg = ParameterMessage(0, 1, 5, [_payload(3), _payload(4, cloud=False, dtype=np.float16)], degree=2)
+    back = from_bytes(to_bytes(msg))
+    assert back.sender == 0 and back.receiver == 1 and back.round == 5 and back.degree == 2
+    assert np.array_equal(back.instances[0].params, msg.instances[0].params)
+    assert back.instances[1].params.dtype == np.float16 and back.instances[1].cloud is None
+    assert np.array_equal(back.instances[0].cloud, msg.instances[0].cloud) and back.instances[0].caption == "a red mug"
+    rays = RayMessage(1, 0, 5, np.stack([np.eye(4)] * 2).astype(np.float32), (100.0, 100.0, 80.0, 60.0, 160, 120), 7, 32)
+    channel = Channel(2)
+    d1, d2 = channel.transmit(msg), channel.transmit(rays)
+    assert d1.bytes == len(to_bytes(msg)) and d2.bytes == len(to_bytes(rays))
+    assert channel.bytes_sent.tolist() == [d1.bytes, d2.bytes] and channel.link_bytes[0, 1] == d1.bytes
+    assert len(to_bytes(ParameterMessage(0, 1, 5, [_payload(3, dtype=np.float16)]))) < len(to_bytes(
+        ParameterMessage(0, 1, 5, [_payload(3)])))
+
+
+def test_corrupt_messages_are_refused():
+    data = to_bytes(ParameterMessage(0, 1, 0, [_payload()]))
+    with pytest.raises(MessageError, match="magic"):
+        from_bytes(b"junk" + data)
+    with pytest.raises(MessageError, match="truncated"):
+        from_bytes(data[:-10])
+
+
+def test_channel_drops_by_probability_and_enforces_the_budget():
+    msg = ParameterMessage(0, 1, 0, [_payload()])
+    size = len(to_bytes(msg))
+    lossy = Channel(2, success_probability=0.0)
+    d = lossy.transmit(msg)
+    assert d.status == "dropped" and d.message is None and lossy.bytes_sent[0] == size and lossy.bytes_received[1] == 0
+    budget = Channel(2, budget_bytes=1.5 * size)
+    assert budget.transmit(msg).status == "delivered"
+    assert budget.transmit(msg).status == "over_budget" and budget.bytes_sent[0] == size
+    draws = [Channel(2, 0.5, seed=3).transmit(msg).status for _ in range(1)]
+    assert draws == [Channel(2, 0.5, seed=3).transmit(msg).status]
+    with pytest.raises(ValueError, match="in \\[0, 1\\]"):
+        Channel(2, success_probability=1.5)
+
+
+# ---- eq. 12: the three algorithms ------------------------------------------------------------------
+def _pairs(rows, vectors, peer_deg, own_deg):
+    return ConsistencyPairs(torch.tensor(rows), torch.tensor(vectors, dtype=torch.float32),
+                            torch.tensor(peer_deg), torch.tensor(own_deg))
+
+
+def test_dinno_and_dsgd_updates_match_hand_computed_values():
+    theta = torch.tensor([[1.0, 2.0], [0.0, -1.0]])
+    pairs = _pairs([0, 0], [[3.0, 0.0], [1.0, 4.0]], [1, 2], [2, 2])
+    # DiNNO dual: p_0 += rho * ((1-3, 2-0) + (1-1, 2-4)) = 0.5 * (-2, 0) ; row 1 untouched
+    duals = dinno_dual_update(torch.zeros(2, 2), theta, pairs, rho=0.5)
+    assert torch.allclose(duals, torch.tensor([[-1.0, 0.0], [0.0, 0.0]]))
+    # penalty: theta.p + rho * sum ||theta - (theta0 + theta_j)/2||^2 with theta0 = theta
+    # mids (2, 1) and (1, 3): ||(-1, 1)||^2 + ||(0, -1)||^2 = 3; linear -1 -> -1 + 0.5 * 3
+    assert torch.allclose(dinno_penalty(theta, theta, duals, pairs, 0.5), torch.tensor(0.5))
+    # consensus: (rho/2) * 3
+    assert torch.allclose(consensus_penalty(theta, theta, pairs, 0.3), torch.tensor(0.45))
+    # DSGD Metropolis: W = 1/(max(2,1)+1) = 1/3 and 1/(max(2,2)+1) = 1/3; W_00 = 1/3
+    mixed = metropolis_mix(theta, pairs)
+    assert torch.allclose(mixed[0], torch.tensor([(1 + 3 + 1) / 3, (2 + 0 + 4) / 3]))
+    assert torch.equal(mixed[1], theta[1])
+
+
+def test_consensus_pulls_two_agents_parameters_together():
+    torch.manual_seed(0)
+    a = torch.nn.Parameter(torch.randn(1, 20))
+    b = torch.nn.Parameter(torch.randn(1, 20) + 3.0)
+    start = float((a - b).detach().norm())
+    for _ in range(50):
+        pa = _pairs([0], b.detach().tolist(), [1], [1])
+        pb = _pairs([0], a.detach().tolist(), [1], [1])
+        la = consensus_penalty(a, a.detach(), pa, 0.3)
+        lb = consensus_penalty(b, b.detach(), pb, 0.3)
+        ga, gb = torch.autograd.grad(la, a)[0], torch.autograd.grad(lb, b)[0]
+        with torch.no_grad():
+            a -= 0.5 * ga
+            b -= 0.5 * gb
+    assert float((a - b).detach().norm()) < 0.05 * start
+
+
+# ---- eq. 13 ----------------------------------------------------------------------------------------
+def _plane_bank(seed: int, train_steps: int) -> InstanceFieldBank:
+    """One instance in the box [-0.5, 0.5]^2 x [1, 2]: trained to be solid below z = 1.5."""
+    g = torch.Generator().manual_seed(seed)
+    bank = InstanceFieldBank(OBJECT_FIELD, "cpu")
+    bank.add_instances(1, torch.tensor([[-0.5, -0.5, 1.0]]), torch.tensor([[0.5, 0.5, 2.0]]), generator=g)
+    opt = StackedAdam(bank, AdamConfig(lr=3e-3))
+    for _ in range(train_steps):
+        x = torch.rand(1, 512, 3, generator=g) * torch.tensor([1.0, 1.0, 1.0]) + torch.tensor([-0.5, -0.5, 1.0])
+        target = (x[..., 2] > 1.5).float()
+        loss = (bank(x, with_colour=False).occupancy - target).abs().mean()
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+    return bank
+
+
+def _down_rays(n: int = 256) -> RayBundle:
+    """Rays from z = 0 looking along +z through the box (unit z, so t is the depth)."""
+    g = torch.Generator().manual_seed(1)
+    xy = torch.rand(n, 2, generator=g) * 0.8 - 0.4
+    return RayBundle(torch.cat([xy, torch.zeros(n, 1)], 1), torch.tensor([[0.0, 0.0, 1.0]]).expand(n, 3).contiguous())
+
+
+def test_render_consistency_fits_a_blind_zone_where_parameter_consistency_alone_does_not():
+    peer = _plane_bank(0, 400)  # the peer saw the surface
+    rays = _down_rays()
+    with torch.no_grad():
+        from mapping.render import CompositeConfig, composite_instances
+        target = composite_instances([peer], rays, CompositeConfig(samples_per_box=32), with_colour=False).depth
+
+    def blind_error(use_render: bool) -> float:
+        me = _plane_bank(5, 0)  # never saw it: a random network in the same frame
+        opt = StackedAdam(me, AdamConfig(lr=3e-3))
+        pairs = _pairs([0], peer.params.detach().tolist(), [1], [1])
+        for _ in range(60):
+            anchor = me.params.detach().clone()
+            loss = consensus_penalty(me.params, anchor, pairs, 0.3)
+            if use_render:
+                loss = loss + render_consistency_loss([me], [peer], rays, samples_per_box=32)[0]
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+        with torch.no_grad():
+            depth = composite_instances([me], rays, CompositeConfig(samples_per_box=32), with_colour=False).depth
+        return float((depth - target).abs().mean())
+
+    parameter_only, with_render = blind_error(False), blind_error(True)
+    assert with_render < 0.05, with_render  # within 5 cm of the peer's surface
+    assert parameter_only > 3 * with_render, (parameter_only, with_render)
+
+
+# ---- alignment on arrival --------------------------------------------------------------------------
+def _box_cloud(lo, hi, step=0.02):
+    axes = [np.arange(a, b + 1e-9, step) for a, b in zip(lo, hi)]
+    g = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
+    on_surface = np.any([(np.isclose(g[:, k], lo[k]) | np.isclose(g[:, k], hi[k])) for k in range(3)], axis=0)
+    return g[on_surface]
+
+
+def _unit(v):
+    v = np.asarray(v, np.float32)
+    return v / np.linalg.norm(v)
+
+
+def test_arrival_merges_two_halves_of_one_sofa_but_not_a_mug_against_a_book():
+    sofa_feature, mug, book = _unit([1, 0, 0, 0.1]), _unit([0, 1, 0, 0]), _unit([0, 0, 1, 0])
+    left, right = _box_cloud((0, 0, 0), (1.0, 0.8, 0.8)), _box_cloud((1.0, 0, 0), (2.0, 0.8, 0.8))
+    own = {1: InstanceView(left, sofa_feature, 0.5), 2: InstanceView(right, sofa_feature, 0.5)}
+    whole = np.concatenate([left, right])
+    [d] = align_arrivals(own, {9: InstanceView(whole, sofa_feature, 0.9)})
+    assert d.kind == "match" and d.own_id == 1 and d.merged == (2,) and d.take_meaning
+    mug_cloud, book_cloud = _box_cloud((0, 0, 0), (0.1, 0.1, 0.12)), _box_cloud((0.1, 0, 0), (0.3, 0.2, 0.05))
+    own = {1: InstanceView(mug_cloud, mug, 0.6), 2: InstanceView(book_cloud, book, 0.6)}
+    coarse = np.concatenate([mug_cloud, book_cloud])  # a peer's under-segmented mask of both
+    [d] = align_arrivals(own, {4: InstanceView(coarse, _unit(mug + book), 0.3)})
+    assert d.kind == "match" and d.merged == () and not d.take_meaning
+    [d] = align_arrivals(own, {5: InstanceView(_box_cloud((3, 3, 0), (3.2, 3.2, 0.2)), mug, 0.9)})
+    assert d.kind == "adopt"
+
+
+# ---- rounds on the tiny world ----------------------------------------------------------------------
+class _CountingStream:
+    def __init__(self, inner):
+        self.inner, self.max_read = inner, -1
+
+    def __len__(self):
+        return len(self.inner)
+
+    def read(self, i):
+        self.max_read = max(self.max_read, i)
+        return self.inner.read(i)
+
+
+def _tiny_team(tiny_world, **overrides):
+    from openmulti_env.run_presets import mapping_config
+    from openmulti_env.sim_team import world_streams, world_vocabulary
+
+    streams = [_CountingStream(s) for s in world_streams(tiny_world, seed=0, segmentation_errors=False)]
+    channel = overrides.pop("channel", ChannelConfig())
+    mapping = replace(mapping_config("tiny"), iterations_per_keyframe=2, refit_steps=10)
+    config = TeamConfig(mapping=mapping, frames_per_round=4,
+                        consistency=ConsistencyConfig(iterations=2, rays_per_pose=64), **overrides)
+    return Team(streams, config, world_vocabulary(tiny_world), seed=0, channel=channel, device="cpu"), streams
+
+
+def test_bad_plans_get_a_clear_error(tiny_world):
+    team, _ = _tiny_team(tiny_world)
+    with pytest.raises(PlanError, match="must be \\(2, 2\\)"):
+        team.round(RoundPlan(np.ones((3, 3), bool), np.zeros((2, 2), bool)))
+    with pytest.raises(PlanError, match="self-links"):
+        team.round(RoundPlan(np.eye(2, dtype=bool), np.zeros((2, 2), bool)))
+    with pytest.raises(PlanError, match="booleans"):
+        team.round(RoundPlan(np.full((2, 2), 0.5), np.zeros((2, 2), bool)))
+
+
+def test_rounds_are_causal_exchange_adopts_and_a_dropped_message_changes_nothing(tiny_world):
+    team, streams = _tiny_team(tiny_world)
+    silent, _ = _tiny_team(tiny_world)
+    lossy = Team([_CountingStream(s.inner) for s in streams], team.config, team.members[0].vocabulary, seed=0,
+                 channel=ChannelConfig(success_probability=0.0), device="cpu")
+    for r in range(2):
+        report = team.round(RoundPlan.always(2))
+        silent.round(RoundPlan.never(2))
+        dropped = lossy.round(RoundPlan.always(2))
+        for s in streams:  # never a frame beyond the round's
+            assert s.max_read < (r + 1) * team.config.frames_per_round
+        assert report.delivered == 4 and sum(report.bytes_sent) == int(report.bytes_per_link.sum()) > 0
+        assert dropped.dropped == 4 and dropped.delivered == 0
+    # what arrived was adopted or matched, and is rendered by the receiver
+    a0 = team.members[0]
+    assert a0.held[1] and set(a0.matches[1].values()) <= set(a0.mapper.slots)
+    # dropped messages leave every receiver exactly as if nothing had been sent
+    for m_lossy, m_silent in zip(lossy.members, silent.members):
+        assert not m_lossy.held
+        for name in m_lossy.mapper.banks:
+            assert torch.equal(m_lossy.mapper.banks[name].params, m_silent.mapper.banks[name].params)
+
+
+def test_team_checkpoint_round_trip(tiny_world, tmp_path):
+    team, _ = _tiny_team(tiny_world)
+    team.round(RoundPlan.always(2))
+    path = team.save(tmp_path / "team.pt", extra={"policy": "always"})
+    resumed, _ = _tiny_team(tiny_world)
+    assert resumed.load(path) == {"policy": "always"} and resumed.round_index == 1
+    a, b = team.round(RoundPlan.always(2)), resumed.round(RoundPlan.always(2))
+    assert a.bytes_sent == b.bytes_sent
+    for ma, mb in zip(team.members, resumed.members):
+        for name in ma.mapper.banks:
+            assert torch.equal(ma.mapper.banks[name].params, mb.mapper.banks[name].params)
