@@ -14,7 +14,7 @@ ranked with ``RetrievalIndex``; top-1 is correct when the best entry's ground-tr
 accepted. No image-text checkpoint ships, so the visual term is off. Tune only with ``--split tune``.
 
 Run: `.venv/bin/python benchmarks/bench_retrieval.py [--encoders mpnet minilm] [--split tune]
-[--label-share 0.6 --context-weight 0.3] [--out runs/bench_retrieval]`. Prints tables; writes OUT.json.
+[--label-share 0.6 --context-weight 0.0] [--out runs/bench_retrieval]`. Prints tables; writes OUT.json.
 """
 
 from __future__ import annotations
