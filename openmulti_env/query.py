@@ -97,7 +97,8 @@ class RunMap:
             from mapping.perception.text_encoder import DEFAULT_TEXT_ENCODER, shared_text_encoder  # noqa: PLC0415
 
             recorded = next((b.encoder_name() for b in self.books.values() if b.encoder_name()), None)
-            text_encoder = shared_text_encoder(name=text_encoder or recorded or DEFAULT_TEXT_ENCODER, backend=backend)
+            text_encoder = shared_text_encoder(name=text_encoder or recorded or DEFAULT_TEXT_ENCODER, backend=backend,
+                                               persist=True)  # category prompts are encoded once per machine
         self.text_encoder, self.image_encoder = text_encoder, image_encoder
         self.indexes: dict[str, RetrievalIndex] = {}
         for agent, book in self.books.items():

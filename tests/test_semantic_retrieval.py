@@ -238,3 +238,16 @@ def test_query_cli_errors_exit_2_with_a_clear_message(encoder, tmp_path, capsys)
 def test_query_slug():
     assert query_slug("Somewhere to sleep?") == "somewhere_to_sleep"
     assert query_slug("???") == "query"
+
+
+def test_query_cli_answers_a_file_of_queries_and_refuses_another_encoder(encoder, tmp_path, capsys):
+    run = write_run(tmp_path / "run", encoder)
+    queries = tmp_path / "queries.txt"
+    queries.write_text("# everyday queries\nsomewhere to sleep\n\nsomething to sit on\n")
+    assert main(["query", "--run", str(run), "--top", "1", "--queries", str(queries)]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert [o["query"] for o in out] == ["somewhere to sleep", "something to sit on"]
+    assert [o["results"][0]["category"] for o in out] == ["bed", "chair"]
+    other = "minilm" if encoder.name == "mpnet" else "mpnet"
+    assert main(["query", "--run", str(run), "--text-encoder", other, "a bed"]) == 2
+    assert f"made by the {encoder.name!r} text encoder" in capsys.readouterr().err

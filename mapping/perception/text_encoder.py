@@ -103,10 +103,13 @@ class TextEncoder:
         backend: "torch" (sentence-transformers) or "numpy" (no torch; for short-lived processes).
         cache_dir: where mpnet is unpacked (default: ``$OPENMULTI_CACHE`` or ``~/.cache/openmulti``).
         folder: load this sentence-transformers folder instead of the named model's (tests, own copies).
+        persist: keep encodings on disk too (``<cache>/text_features/<model>.npz``), so a new process
+            answers texts seen before (category prompts, repeated queries) without running the model.
     """
 
     def __init__(self, name: str = DEFAULT_TEXT_ENCODER, device: str = "cpu", batch_size: int = 256,
-                 backend: str = "torch", cache_dir: str | Path | None = None, folder: str | Path | None = None):
+                 backend: str = "torch", cache_dir: str | Path | None = None, folder: str | Path | None = None,
+                 persist: bool = False):
         self.spec = _spec(name)
         if backend not in ("torch", "numpy"):
             raise TextEncoderError(f"unknown text encoder backend {backend!r}; choose 'torch' or 'numpy'")
@@ -114,6 +117,13 @@ class TextEncoder:
         self.cache_dir, self._folder = cache_dir, None if folder is None else Path(folder)
         self._model = None
         self._cache: dict[str, np.ndarray] = {}
+        self._disk = (cache_root(cache_dir) / "text_features" / f"{self.spec.model}.npz") if persist and folder is None else None
+        if self._disk is not None and self._disk.is_file():
+            try:
+                with np.load(self._disk) as z:
+                    self._cache.update(zip((str(t) for t in z["texts"]), z["vectors"].astype(np.float32)))
+            except (OSError, ValueError, KeyError):
+                pass  # a damaged cache is only a slower start
 
     @property
     def dim(self) -> int:
@@ -156,17 +166,32 @@ class TextEncoder:
                                        convert_to_numpy=True, show_progress_bar=False)
             for t, v in zip(missing, np.asarray(vectors, dtype=np.float32)):
                 self._cache[t] = v
+            if self._disk is not None:
+                self._save_disk_cache()
         if not texts:
             return np.zeros((0, self.dim), np.float32)
         return np.stack([self._cache[t] for t in texts])
 
 
+    def _save_disk_cache(self, max_texts: int = 20_000) -> None:
+        texts = list(self._cache)[-max_texts:]
+        self._disk.parent.mkdir(parents=True, exist_ok=True)
+        tmp = self._disk.with_name(f".{self._disk.name}.{os.getpid()}.tmp")
+        try:
+            with open(tmp, "wb") as f:
+                np.savez(f, texts=np.array(texts), vectors=np.stack([self._cache[t] for t in texts]))
+            os.replace(tmp, self._disk)
+        except OSError:
+            tmp.unlink(missing_ok=True)  # a read-only cache is only a slower start
+
+
 _SHARED: dict[tuple[str, str, str], TextEncoder] = {}
 
 
-def shared_text_encoder(device: str = "cpu", name: str = DEFAULT_TEXT_ENCODER, backend: str = "torch") -> TextEncoder:
+def shared_text_encoder(device: str = "cpu", name: str = DEFAULT_TEXT_ENCODER, backend: str = "torch",
+                        persist: bool = False) -> TextEncoder:
     """One encoder per (device, name, backend) for the process (loading takes seconds; the cache is shared)."""
     key = (device, name, backend)
     if key not in _SHARED:
-        _SHARED[key] = TextEncoder(name, device, backend=backend)
+        _SHARED[key] = TextEncoder(name, device, backend=backend, persist=persist)
     return _SHARED[key]
