@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from mapping.evaluate.retrieval import RetrievalHit, RetrievalIndex
+from mapping.evaluate.retrieval import RetrievalHit, RetrievalIndex, check_encoder
 from mapping.perception.codebook import CodeBook, CodeBookError
 
 __all__ = ["QueryResult", "RunMap", "load_map", "load_run_codebooks", "query_slug", "run_query"]
@@ -102,6 +102,7 @@ class RunMap:
         self.text_encoder, self.image_encoder = text_encoder, image_encoder
         self.indexes: dict[str, RetrievalIndex] = {}
         for agent, book in self.books.items():
+            check_encoder(book, text_encoder)  # before any labelling, so the error names the encoders
             labels = {i: e.label for i, e in book.items()}
             if any(v is None for v in labels.values()):
                 from mapping.evaluate.semantic import zero_shot_labels  # noqa: PLC0415
