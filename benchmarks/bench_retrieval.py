@@ -1,181 +1,219 @@
-"""Retrieval benchmark: top-1 accuracy of open-vocabulary queries on the scene presets, and zero-shot labelling.
+"""Retrieval benchmark: top-1 of everyday queries on every scene preset, per encoder, with and without errors.
 
-For each preset (room0-2, office0-4; only the scene description is built, no world), a code book holds
-every instance with its caption encoded by SBERT (``Instance.caption``, the scene's metadata caption).
+For each preset (only the scene description is built, no world) and each text encoder, a code book
+holds what a run's fused code book holds: per instance the simulated captioner's phrasings of
+``--views`` frames, their features averaged and re-normalised (as cross-frame fusion does), the most
+frequent phrasing as caption, and the zero-shot label (``zero_shot_labels`` over the 34 categories).
+With the error model (``SegmentationErrorConfig()`` defaults, agent 0, seed 0): an instance with a
+semantic error has ``--partial-share`` of its views captioned as its wrong category (the error shows
+in views cut by the image border), an over-segmented one is two or three entries with the same
+category, an under-segmented pair is one entry captioned as the larger instance (the other is gone).
+
 Every query of ``benchmarks/retrieval_queries.yaml`` whose accepted categories occur in the scene is
-scored with ``score_instances``; top-1 is correct when the best instance's ground-truth category is
-accepted. No image-text encoder: the caption term only. The labelling part measures how often
-``zero_shot_labels`` gives an instance its ground-truth category, for a few category-name prompts.
+ranked with ``RetrievalIndex``; top-1 is correct when the best entry's ground-truth category is
+accepted. No image-text checkpoint ships, so the visual term is off. Tune only with ``--split tune``.
 
-Run: `.venv/bin/python benchmarks/bench_retrieval.py [--scenes room0 ...] [--out runs/bench_retrieval]`.
-Prints tables; writes ``OUT.json`` and ``OUT.png`` (top-1 per query kind and scene).
+Run: `.venv/bin/python benchmarks/bench_retrieval.py [--encoders mpnet minilm] [--split tune]
+[--label-share 0.6 --context-weight 0.0] [--out runs/bench_retrieval]`. Prints tables; writes OUT.json.
 """
 
 from __future__ import annotations
 
 import argparse
+import resource
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
-import matplotlib
+import numpy as np
+import yaml
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-import yaml  # noqa: E402
-
-from mapping.evaluate.retrieval import score_instances  # noqa: E402
-from mapping.evaluate.semantic import zero_shot_labels  # noqa: E402
-from mapping.perception import CodeBook, CodeBookEntry, shared_text_encoder  # noqa: E402
-from mapping.perception.captioner import TemplateCaptioner  # noqa: E402
-from openmulti_env.results import write_json_atomic  # noqa: E402
-from openmulti_env.world.semantics import instance_infos  # noqa: E402
-from openmulti_env.world import REPLICA_LIKE_PRESETS, make_scene  # noqa: E402
-from openmulti_env.world.furniture import CATEGORIES  # noqa: E402
-from openmulti_env.world.scene import STRUCTURE_CATEGORIES  # noqa: E402
+from mapping.evaluate.retrieval import RetrievalIndex, RetrievalWeights
+from mapping.evaluate.semantic import zero_shot_labels
+from mapping.perception import CodeBook, CodeBookEntry, TextEncoder
+from mapping.perception.captioner import TemplateCaptioner
+from mapping.perception.errors import SegmentationErrorConfig, plan_errors
+from openmulti_env.results import write_json_atomic
+from openmulti_env.world import REPLICA_LIKE_PRESETS, make_scene
+from openmulti_env.world.furniture import CATEGORIES
+from openmulti_env.world.scene import STRUCTURE_CATEGORIES
+from openmulti_env.world.semantics import instance_infos
 
 QUERIES = Path(__file__).with_name("retrieval_queries.yaml")
-KINDS = ("name", "synonym", "function")
-LABEL_PROMPTS = ("{}", "a {}", "a photo of a {}", "a {} in a room")
+KINDS = ("name", "synonym", "function", "relation")
+SPLITS = ("tune", "held_out")
+VOCABULARY = list(CATEGORIES) + list(STRUCTURE_CATEGORIES)
 
 
 @dataclass(frozen=True)
 class Query:
-    """One benchmark query: its text, kind and the categories that answer it."""
+    """One benchmark query: its text, kind, split and the categories that answer it."""
 
     text: str
     kind: str
+    split: str
     accept: frozenset[str]
 
 
-def load_queries(path: Path) -> list[Query]:
-    """Queries of the YAML file (ValueError naming an unknown kind or category)."""
-    known = set(CATEGORIES) | set(STRUCTURE_CATEGORIES)
+def load_queries(path: Path = QUERIES) -> list[Query]:
+    """Queries of the YAML file (ValueError naming an unknown kind, split or category)."""
+    known = set(VOCABULARY)
     out = []
     for rec in yaml.safe_load(path.read_text())["queries"]:
-        q = Query(rec["text"], rec["kind"], frozenset(rec["accept"]))
-        if q.kind not in KINDS or not q.accept <= known:
-            raise ValueError(f"{path}: query {q.text!r} has kind {q.kind!r} or unknown categories "
-                             f"{sorted(q.accept - known)}")
+        q = Query(rec["text"], rec["kind"], rec["split"], frozenset(rec["accept"]))
+        if q.kind not in KINDS or q.split not in SPLITS or not q.accept <= known:
+            raise ValueError(f"{path}: query {q.text!r}: kind {q.kind!r}, split {q.split!r} or unknown "
+                             f"categories {sorted(q.accept - known)}")
         out.append(q)
     return out
 
 
-def scene_codebook(scene, encoder, captions: str = "metadata", seed: int = 0,
-                   views: int = 10) -> tuple[CodeBook, dict[int, str]]:
-    """Code book of a scene's instances and id -> ground-truth category.
-
-    ``captions``: "metadata" = the scene's own caption of each instance; "captioner" = what the fused
-    code book of a run holds without semantic errors: the simulated captioner's phrasings of
-    ``views`` frames, their SBERT features averaged and re-normalised (as cross-frame fusion does)
-    and the most frequent phrasing as the caption text.
-    """
-    if captions == "metadata":
-        texts = [inst.caption for inst in scene.instances]
-        features = encoder.encode(texts)
-    else:
-        captioner = TemplateCaptioner(seed)
-        texts, features = [], []
-        for info in instance_infos(scene):
-            phrasings = [captioner.caption(info, agent=0, frame_index=f) for f in range(views)]
+def scene_codebook(scene, encoder, errors: bool, views: int = 10, partial_share: float = 0.5,
+                   seed: int = 0) -> tuple[CodeBook, dict[int, str]]:
+    """A fused-looking code book of ``scene`` (see the module docstring) and entry id -> true category."""
+    infos = instance_infos(scene)
+    plan = plan_errors(infos, SegmentationErrorConfig() if errors else SegmentationErrorConfig.none(), seed, 0)
+    area = {inst.instance_id: float(getattr(inst.mesh, "area", 0.0)) for inst in scene.instances}
+    captioner = TemplateCaptioner(seed)
+    book, truth, next_id = CodeBook(), {}, 1
+    for info in infos:
+        partner = plan.under_partner.get(info.instance_id)
+        if partner is not None and (area[partner], -partner) > (area[info.instance_id], -info.instance_id):
+            continue  # merged into its larger partner's mask
+        wrong = plan.wrong_category.get(info.instance_id)
+        for piece in range(plan.over_pieces.get(info.instance_id, 1)):
+            phrasings = [captioner.caption(info, 0, f, wrong if wrong and f < views * partial_share else None, piece)
+                         for f in range(views)]
             mean = encoder.encode(phrasings).mean(axis=0)
-            features.append(mean / np.linalg.norm(mean))
-            texts.append(max(sorted(set(phrasings)), key=phrasings.count))
-    book = CodeBook({inst.instance_id: CodeBookEntry(text, f, confidence=1.0)
-                     for inst, text, f in zip(scene.instances, texts, features)})
-    return book, {inst.instance_id: inst.category for inst in scene.instances}
+            book[next_id] = CodeBookEntry(max(sorted(set(phrasings)), key=phrasings.count),
+                                          mean / np.linalg.norm(mean), confidence=1.0)
+            truth[next_id] = info.category
+            next_id += 1
+    book.text_encoder = encoder.name
+    labels = zero_shot_labels(book, VOCABULARY, encoder)
+    for i, label in labels.items():
+        book[i].label = label
+    return book, truth
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--scenes", nargs="*", default=list(REPLICA_LIKE_PRESETS))
-    parser.add_argument("--queries", type=Path, default=QUERIES)
-    parser.add_argument("--out", default="runs/bench_retrieval", help="prefix of the .json and .png written")
-    parser.add_argument("--captions", choices=("metadata", "captioner"), default="metadata",
-                        help="the scene's own captions, or the simulated captioner's phrasings")
-    args = parser.parse_args()
-
-    queries = load_queries(args.queries)
-    encoder = shared_text_encoder()
-    vocabulary = list(CATEGORIES) + list(STRUCTURE_CATEGORIES)
-    rows, labelling = [], {p: [0, 0] for p in LABEL_PROMPTS}
-    for name in args.scenes:
+def evaluate(encoder, scenes: list[str], queries: list[Query], weights: RetrievalWeights, views: int,
+             partial_share: float) -> tuple[list[dict], dict]:
+    """Rows (one per query x scene x error setting) and zero-shot label accuracy per error setting."""
+    rows, labelling = [], {False: [0, 0], True: [0, 0]}
+    for name in scenes:
         scene = make_scene(name)
-        book, truth = scene_codebook(scene, encoder, args.captions)
-        present = set(truth.values())
-        for q in queries:
-            if not q.accept & present:
-                continue
-            best = score_instances(q.text, book, encoder)[0]
-            rows.append({"scene": name, "query": q.text, "kind": q.kind, "correct": truth[best.instance_id] in q.accept,
-                         "top_caption": best.caption, "top_category": truth[best.instance_id],
-                         "score": round(best.score, 4)})
-        for prompt in LABEL_PROMPTS:
-            labels = zero_shot_labels(book, vocabulary, encoder, prompt=prompt)
-            labelling[prompt][0] += sum(labels[i] == truth[i] for i in labels)
-            labelling[prompt][1] += len(labels)
-
-    table = _table(rows, args.scenes)
-    _print_tables(rows, table, labelling, args.scenes, args.captions)
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    result = {"scenes": args.scenes, "queries": len(queries), "captions": args.captions, "image_encoder": None,
-              "top1_pct": table, "labelling_pct": {p: 100.0 * k / n for p, (k, n) in labelling.items()},
-              "rows": rows}
-    write_json_atomic(out.with_suffix(".json"), result)
-    _plot(table, args.scenes, out.with_suffix(".png"), args.captions)
-    print(f"\nWrote {out.with_suffix('.json')} and {out.with_suffix('.png')}")
-
-
-def _table(rows: list[dict], scenes: list[str]) -> dict:
-    """kind -> {"queries", "n" (query, scene) pairs, "all", scene: top-1 %} (None: no query of that kind)."""
-    table = {}
-    for kind in KINDS + ("all",):
-        sel = [r for r in rows if kind == "all" or r["kind"] == kind]
-        entry = {"queries": len({r["query"] for r in sel}), "n": len(sel), "all": _pct(sel)}
-        entry.update({s: _pct([r for r in sel if r["scene"] == s]) for s in scenes})
-        table[kind] = entry
-    return table
+        for errors in (False, True):
+            book, truth = scene_codebook(scene, encoder, errors, views, partial_share)
+            labelling[errors][0] += sum(book[i].label == truth[i] for i in book)
+            labelling[errors][1] += len(book)
+            index = RetrievalIndex(book, encoder, weights=weights)
+            present = set(truth.values())
+            for q in queries:
+                if q.accept & present:
+                    best = index.rank(q.text)[0]
+                    rows.append({"scene": name, "errors": errors, "query": q.text, "kind": q.kind, "split": q.split,
+                                 "correct": truth[best.instance_id] in q.accept, "top_category": truth[best.instance_id],
+                                 "top_caption": best.caption})
+    return rows, {("on" if e else "off"): 100.0 * k / n for e, (k, n) in labelling.items()}
 
 
 def _pct(rows: list[dict]) -> float | None:
     return 100.0 * float(np.mean([r["correct"] for r in rows])) if rows else None
 
 
-def _print_tables(rows: list[dict], table: dict, labelling: dict, scenes: list[str], captions: str) -> None:
+def encoder_figures(name: str) -> dict:
+    """Install size, load time, memory and encoding speed of one encoder (both backends)."""
+    from importlib import metadata  # noqa: PLC0415
+
+    from mapping.perception.text_encoder import TEXT_ENCODERS  # noqa: PLC0415
+
+    size = sum(f.size or 0 for p in TEXT_ENCODERS[name].packages for f in metadata.distribution(p).files or [])
+    out = {"install_mb": size / 1e6}
+    captions = [f"a {c} {n} number {k}" for k in range(8) for c in ("red", "light oak", "black metal")
+                for n in ("chair", "double bed", "floor lamp", "coffee table", "bookcase", "potted plant")]
+    for backend in ("torch", "numpy"):
+        rss0 = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+        enc = TextEncoder(name, backend=backend)
+        t = time.perf_counter()
+        enc.folder()
+        out["unpack_or_locate_s"] = time.perf_counter() - t
+        t = time.perf_counter()
+        enc._load()
+        out[f"{backend}_load_s"] = time.perf_counter() - t
+        t = time.perf_counter()
+        enc.encode(captions)
+        out[f"{backend}_ms_per_caption"] = 1000 * (time.perf_counter() - t) / len(captions)
+        t = time.perf_counter()
+        enc.encode(["somewhere to sleep"])
+        out[f"{backend}_ms_one_query"] = 1000 * (time.perf_counter() - t)
+        out[f"{backend}_peak_rss_gain_mb"] = (resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - rss0) / 1024
+    return out
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--scenes", nargs="*", default=list(REPLICA_LIKE_PRESETS))
+    parser.add_argument("--encoders", nargs="*", default=["mpnet", "minilm"])
+    parser.add_argument("--split", choices=("tune", "held_out", "both"), default="both")
+    parser.add_argument("--label-share", type=float, default=RetrievalWeights.label_share)
+    parser.add_argument("--context-weight", type=float, default=RetrievalWeights.context_weight)
+    parser.add_argument("--views", type=int, default=10)
+    parser.add_argument("--partial-share", type=float, default=0.5)
+    parser.add_argument("--figures", action="store_true", help="also time and size the encoders")
+    parser.add_argument("--misses", action="store_true", help="print the misses of the tuning half")
+    parser.add_argument("--out", default="runs/bench_retrieval")
+    args = parser.parse_args()
+
+    queries = [q for q in load_queries() if args.split == "both" or q.split == args.split]
+    weights = RetrievalWeights(label_share=args.label_share, context_weight=args.context_weight)
+    result = {"scenes": args.scenes, "weights": vars(weights), "views": args.views,
+              "partial_share": args.partial_share, "encoders": {}}
+    for name in args.encoders:
+        encoder = TextEncoder(name)
+        rows, labelling = evaluate(encoder, args.scenes, queries, weights, args.views, args.partial_share)
+        entry = {"labelling_pct": labelling, "rows": rows}
+        if args.figures:
+            entry["figures"] = encoder_figures(name)
+        result["encoders"][name] = entry
+        _print(name, rows, labelling, args.scenes, entry.get("figures"), args.misses)
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    write_json_atomic(out.with_suffix(".json"), result)
+    print(f"\nWrote {out.with_suffix('.json')}")
+
+
+def _print(name: str, rows: list[dict], labelling: dict, scenes: list[str], figures: dict | None, misses: bool) -> None:
     cell = lambda v: "-" if v is None else f"{v:.0f}"  # noqa: E731
-    print(f"Top-1 retrieval [%], caption term only ({captions} captions, SBERT), {len(rows)} (query, scene) pairs")
-    print("| kind | queries | pairs | top-1 | " + " | ".join(scenes) + " |")
-    print("|---|---:|---:|---:|" + "---:|" * len(scenes))
-    for kind, e in table.items():
-        print(f"| {kind} | {e['queries']} | {e['n']} | {cell(e['all'])} | "
-              + " | ".join(cell(e[s]) for s in scenes) + " |")
-    print("\nMisses:")
-    for r in rows:
-        if not r["correct"]:
-            print(f"  [{r['kind']:<8}] {r['scene']:<8} {r['query']!r:<38} -> {r['top_category']:<13} {r['top_caption']!r}")
-    print("\nZero-shot labelling [% of instances given their ground-truth category], by category-name prompt")
-    for prompt, (k, n) in labelling.items():
-        print(f"  {prompt!r:<20} {100.0 * k / n:5.1f}  ({k}/{n})")
-
-
-def _plot(table: dict, scenes: list[str], path: Path, captions: str) -> None:
-    fig, ax = plt.subplots(figsize=(10, 4))
-    width = 0.8 / len(KINDS)
-    x = np.arange(len(scenes) + 1)
-    for k, kind in enumerate(KINDS):
-        values = [table[kind]["all"]] + [table[kind][s] for s in scenes]
-        ax.bar(x + (k - 1) * width, [np.nan if v is None else v for v in values], width, label=kind)
-    ax.set_xticks(x, ["all"] + scenes)
-    ax.set_ylabel("top-1 [%]")
-    ax.set_ylim(0, 118)
-    ax.axhline(85, color="grey", lw=0.8, ls="--")
-    ax.axhline(70, color="grey", lw=0.8, ls=":")
-    ax.legend(ncol=3, loc="upper center", fontsize=9)
-    ax.set_title(f"Open-vocabulary retrieval, caption term only (SBERT on {captions} captions)")
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
+    print(f"\n## {name}: top-1 [%] by split and kind (all presets, errors off + on; pairs in brackets)")
+    print("| split | " + " | ".join(KINDS) + " | all |\n|---|" + "---:|" * (len(KINDS) + 1))
+    for split in SPLITS:
+        sel = [r for r in rows if r["split"] == split]
+        if sel:
+            print(f"| {split} | " + " | ".join(f"{cell(_pct([r for r in sel if r['kind'] == k]))} "
+                                             f"({sum(r['kind'] == k for r in sel)})" for k in KINDS)
+                  + f" | {cell(_pct(sel))} |")
+    for split in SPLITS:
+        sel = [r for r in rows if r["split"] == split]
+        if not sel:
+            continue
+        print(f"\n{name}, {split}: top-1 [%] per preset, errors off / on")
+        print("| kind | " + " | ".join(scenes) + " | min |\n|---|" + "---:|" * (len(scenes) + 1))
+        for kind in KINDS:
+            cells, lows = [], []
+            for s in scenes:
+                pair = [_pct([r for r in sel if r["kind"] == kind and r["scene"] == s and r["errors"] == e])
+                        for e in (False, True)]
+                cells.append(" / ".join(cell(v) for v in pair))
+                lows += [v for v in pair if v is not None]
+            print(f"| {kind} | " + " | ".join(cells) + f" | {cell(min(lows) if lows else None)} |")
+    print(f"\nzero-shot labels right [% of code-book entries]: errors off {labelling['off']:.1f}, on {labelling['on']:.1f}")
+    if figures:
+        print("encoder figures: " + ", ".join(f"{k} {v:.2f}" for k, v in figures.items()))
+    if misses:
+        print("\nmisses (tuning half, errors off):")
+        for r in rows:
+            if r["split"] == "tune" and not r["errors"] and not r["correct"]:
+                print(f"  [{r['kind']:<8}] {r['scene']:<8} {r['query']!r:<44} -> {r['top_category']:<13} {r['top_caption']!r}")
 
 
 if __name__ == "__main__":

@@ -168,11 +168,21 @@ def _run_mapping(args: argparse.Namespace, out: Path) -> int:
 
 
 def cmd_query(args: argparse.Namespace) -> int:
-    """Rank a run's instances against a text query; print JSON and write DIR/plots/query_<slug>.png."""
-    from openmulti_env.query import run_query  # noqa: PLC0415
+    """Rank a run's instances against one query (or every line of --queries FILE); print JSON.
 
-    result = run_query(args.run, args.text, top_k=args.top, clip_checkpoint=args.clip_checkpoint)
-    print(json.dumps(result.payload, indent=2))
+    The code books are encoded once for all queries; ``--plot`` also writes DIR/plots/query_<slug>.png.
+    """
+    from openmulti_env.query import RunMap, _image_encoder, run_query  # noqa: PLC0415
+
+    texts = [args.text] if args.text is not None else []
+    if args.queries:
+        texts += [line.strip() for line in Path(args.queries).read_text().splitlines()
+                  if line.strip() and not line.lstrip().startswith("#")]
+    if not texts:
+        raise ValueError('give a query text or --queries FILE, e.g. openmulti query --run DIR "somewhere to sleep"')
+    run_map = RunMap(args.run, args.text_encoder, _image_encoder(args.clip_checkpoint))
+    payloads = [run_query(args.run, t, top_k=args.top, plot=args.plot, run_map=run_map).payload for t in texts]
+    print(json.dumps(payloads[0] if args.queries is None else payloads, indent=2))
     return 0
 
 
@@ -212,10 +222,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_run)
 
     p = sub.add_parser("query", help="open-vocabulary instance retrieval on a finished run")
-    p.add_argument("text", metavar="TEXT", help='what to look for, e.g. "somewhere to sleep"')
+    p.add_argument("text", metavar="TEXT", nargs="?", help='what to look for, e.g. "somewhere to sleep"')
+    p.add_argument("--queries", metavar="FILE", help="one query per line (# comments): prints a JSON list")
     p.add_argument("--run", required=True, metavar="DIR", help="run directory (with codebook/ and meshes/)")
     p.add_argument("--top", type=int, default=5, metavar="K", help="how many instances to print")
     p.add_argument("--clip-checkpoint", metavar="PATH", help="local image-text (CLIP) checkpoint: adds the visual term")
+    p.add_argument("--text-encoder", choices=("mpnet", "minilm"),
+                   help="text encoder (default: the one the run's code books record; another is refused)")
+    p.add_argument("--plot", action="store_true", help="also write DIR/plots/query_<slug>.png (about a second more)")
     p.set_defaults(func=cmd_query)
 
     for name, why in PENDING.items():

@@ -3,9 +3,12 @@
 A run directory holds ``metrics.json`` (its ``config``), ``meshes/agent_K.ply`` (scene meshes whose
 vertices carry instance ids) and ``codebook/agent_K.json/.npz``; after cross-agent alignment also
 ``codebook/team.json/.npz``, whose global ids the agents' meshes then share. The team code book is
-preferred when present. Every instance is scored (``mapping.evaluate.retrieval.score_instances``), the
-top K are printed as JSON, and ``DIR/plots/query_<slug>.png`` shows the map from above with the best
-instance highlighted.
+preferred when present. ``load_map(DIR)`` reads the code books once and encodes them for retrieval
+(``mapping.evaluate.retrieval.RetrievalIndex``), so ``.query(text)`` costs one query encoding.
+
+Speed: the text encoder runs on the NumPy backend (no torch import) and nothing heavy is imported
+until needed; the top-down picture (``DIR/plots/query_<slug>.png``, best instance highlighted) needs
+the meshes and matplotlib, so it is drawn only when asked (``plot=True``, ``--plot``).
 """
 
 from __future__ import annotations
@@ -18,22 +21,14 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import trimesh
 
-from mapping.evaluate.meshing import load_scene_mesh
-from mapping.evaluate.retrieval import RetrievalHit, score_instances
-from mapping.evaluate.semantic import zero_shot_labels
+from mapping.evaluate.retrieval import RetrievalHit, RetrievalIndex, check_encoder
 from mapping.perception.codebook import CodeBook, CodeBookError
-from openmulti_env.world.furniture import CATEGORIES
-from openmulti_env.world.scene import STRUCTURE_CATEGORIES
 
-__all__ = ["QueryResult", "load_run_codebooks", "query_slug", "run_query"]
+__all__ = ["QueryResult", "RunMap", "load_map", "load_run_codebooks", "query_slug", "run_query"]
 
 TEAM = "team"
 """Name of the aligned, team-wide code book (and the ``agent`` of its hits)."""
-
-VOCABULARY = tuple(CATEGORIES) + tuple(STRUCTURE_CATEGORIES)
-"""Categories for zero-shot labels of instances whose code book has none (the simulator's 34)."""
 
 MAX_PLOT_POINTS = 150_000
 """Background points drawn at most (a random subset beyond that keeps the scatter fast)."""
@@ -42,9 +37,17 @@ PLOT_POINTS_PER_MESH = 60_000
 """Surface samples added to each agent mesh's vertices for the picture."""
 
 
+def vocabulary() -> tuple[str, ...]:
+    """Categories for zero-shot labels of instances whose code book has none (the simulator's 34)."""
+    from openmulti_env.world.furniture import CATEGORIES  # noqa: PLC0415 (heavy: only when a book lacks labels)
+    from openmulti_env.world.scene import STRUCTURE_CATEGORIES  # noqa: PLC0415
+
+    return tuple(CATEGORIES) + tuple(STRUCTURE_CATEGORIES)
+
+
 @dataclass
 class QueryResult:
-    """What ``run_query`` found: the JSON printed and the picture written (None without meshes)."""
+    """What ``run_query`` found: the JSON printed and the picture written (None without one)."""
 
     payload: dict
     plot: Path | None
@@ -76,6 +79,59 @@ def load_run_codebooks(run_dir: Path) -> dict[str, CodeBook]:
     return {name: CodeBook.load(folder, name) for name in names}
 
 
+class RunMap:
+    """A finished run's code books, encoded once: ``query(text)`` answers in milliseconds.
+
+    Args:
+        run_dir: the run directory (see the module docstring).
+        text_encoder: an encoder object, an encoder name ("mpnet", "minilm"), or None for the encoder
+            the code books record. Another encoder than theirs is refused (EncoderMismatchError).
+        image_encoder: None, or a CLIP-like encoder with ``encode_texts`` (visual term weight 0.8).
+        backend: text encoder backend when it is made here: "numpy" (fast start) or "torch".
+    """
+
+    def __init__(self, run_dir: str | Path, text_encoder=None, image_encoder=None, backend: str = "numpy"):
+        self.run_dir = Path(run_dir)
+        self.books = load_run_codebooks(self.run_dir)
+        if text_encoder is None or isinstance(text_encoder, str):
+            from mapping.perception.text_encoder import DEFAULT_TEXT_ENCODER, shared_text_encoder  # noqa: PLC0415
+
+            recorded = next((b.encoder_name() for b in self.books.values() if b.encoder_name()), None)
+            text_encoder = shared_text_encoder(name=text_encoder or recorded or DEFAULT_TEXT_ENCODER, backend=backend,
+                                               persist=True)  # category prompts are encoded once per machine
+        self.text_encoder, self.image_encoder = text_encoder, image_encoder
+        self.indexes: dict[str, RetrievalIndex] = {}
+        for agent, book in self.books.items():
+            check_encoder(book, text_encoder)  # before any labelling, so the error names the encoders
+            labels = {i: e.label for i, e in book.items()}
+            if any(v is None for v in labels.values()):
+                from mapping.evaluate.semantic import zero_shot_labels  # noqa: PLC0415
+
+                zero_shot = zero_shot_labels(book, vocabulary(), text_encoder, image_encoder)
+                labels = {i: labels[i] or zero_shot[i] for i in book}
+            self.indexes[agent] = RetrievalIndex(book, text_encoder, image_encoder, labels)
+
+    def rank(self, text: str) -> list[tuple[str, RetrievalHit]]:
+        """(agent, hit) of every instance of every code book, best first."""
+        if not isinstance(text, str) or not text.strip():
+            raise ValueError("the query text is empty: give what to look for, e.g. \"somewhere to sleep\"")
+        hits = [(agent, h) for agent, index in self.indexes.items() for h in index.rank(text)]
+        hits.sort(key=lambda ah: (-ah[1].score, _agent_index(ah[0]), ah[1].instance_id))
+        return hits
+
+    def query(self, text: str, top_k: int = 5) -> list[dict]:
+        """The ``top_k`` best instances as dicts (id, agent, category, caption, score, terms)."""
+        if top_k < 1:
+            raise ValueError(f"--top must be at least 1, got {top_k}")
+        return [{"id": h.instance_id, "agent": agent, "category": h.label, "caption": h.caption,
+                 "score": round(h.score, 4), "terms": list(h.terms)} for agent, h in self.rank(text)[:top_k]]
+
+
+def load_map(run_dir: str | Path, text_encoder=None, image_encoder=None, backend: str = "numpy") -> RunMap:
+    """``RunMap`` of a finished run: ``load_map("runs/demo").query("somewhere to sleep")``."""
+    return RunMap(run_dir, text_encoder, image_encoder, backend)
+
+
 def _agent_index(name: str) -> int:
     tail = name.rsplit("_", 1)[-1]
     return int(tail) if tail.isdigit() else 1 << 30
@@ -87,6 +143,10 @@ def _load_meshes(run_dir: Path, points_per_mesh: int = PLOT_POINTS_PER_MESH) -> 
     The points are the vertices plus area-uniform samples on the faces (each sample takes the id of
     its face's first vertex), so low-poly meshes still draw as filled shapes.
     """
+    import trimesh  # noqa: PLC0415 (meshes are for the picture and ``seen_by`` only)
+
+    from mapping.evaluate.meshing import load_scene_mesh  # noqa: PLC0415
+
     out = {}
     for path in sorted((run_dir / "meshes").glob("agent_*.ply"), key=lambda p: _agent_index(p.stem)):
         mesh, ids = load_scene_mesh(path)
@@ -122,18 +182,21 @@ def _warning_to_stderr(message, category, filename, lineno, file=None, line=None
 
 
 def run_query(run_dir: str | Path, text: str, top_k: int = 5, clip_checkpoint: str | None = None,
-              text_encoder=None) -> QueryResult:
-    """Score every instance of a run against ``text``; write the picture; return the JSON payload.
+              text_encoder=None, plot: bool = False, run_map: RunMap | None = None) -> QueryResult:
+    """Score every instance of a run against ``text``; return the JSON payload (and the picture if asked).
 
     Args:
         run_dir: the run directory (see the module docstring).
         text: the query, not blank.
         top_k: how many hits to report (>= 1).
         clip_checkpoint: optional local image-text checkpoint (visual term weight 0.8 when loaded).
-        text_encoder: ``encode(texts) -> (n, 384)``; defaults to the shared SBERT encoder.
+        text_encoder: an encoder, an encoder name, or None for the code books' own encoder.
+        plot: also write ``DIR/plots/query_<slug>.png`` (loads the meshes: about a second more).
+        run_map: a ``RunMap`` already loaded (many queries on one run).
 
     Raises:
-        ValueError: blank text, bad ``top_k``, or a missing / corrupt code book (CodeBookError).
+        ValueError: blank text, bad ``top_k``, another encoder than the code books', or a missing /
+            corrupt code book (CodeBookError).
         FileNotFoundError: no such run directory.
     """
     if not isinstance(text, str) or not text.strip():
@@ -141,36 +204,22 @@ def run_query(run_dir: str | Path, text: str, top_k: int = 5, clip_checkpoint: s
     if top_k < 1:
         raise ValueError(f"--top must be at least 1, got {top_k}")
     run_dir = Path(run_dir)
-    books = load_run_codebooks(run_dir)
-    if text_encoder is None:
-        from mapping.perception.text_encoder import shared_text_encoder  # noqa: PLC0415
-
-        text_encoder = shared_text_encoder()
-    image_encoder = _image_encoder(clip_checkpoint)
-
-    hits: list[tuple[str, RetrievalHit]] = []
-    labels_by_agent = {}
-    for agent, book in books.items():
-        zero_shot = zero_shot_labels(book, VOCABULARY, text_encoder, image_encoder)
-        labels = {i: book[i].label or zero_shot[i] for i in book}
-        labels_by_agent[agent] = labels
-        hits += [(agent, h) for h in score_instances(text, book, text_encoder, image_encoder, labels=labels)]
-    hits.sort(key=lambda ah: (-ah[1].score, _agent_index(ah[0]), ah[1].instance_id))
-
-    meshes = _load_meshes(run_dir)
-    results = [{"id": h.instance_id, "agent": agent, "category": h.label, "caption": h.caption,
-                "score": round(h.score, 4), "terms": list(h.terms)} for agent, h in hits[:top_k]]
-    if books.keys() == {TEAM}:
+    if run_map is None:
+        run_map = RunMap(run_dir, text_encoder, _image_encoder(clip_checkpoint))
+    hits = run_map.rank(text)
+    results = run_map.query(text, top_k)
+    payload = {"query": text, "run": str(run_dir), "scene": _scene_name(run_dir), "results": results}
+    meshes = _load_meshes(run_dir) if plot or run_map.books.keys() == {TEAM} and (run_dir / "meshes").is_dir() else {}
+    if run_map.books.keys() == {TEAM}:
         for r in results:  # which agents' meshes hold this global id
             r["seen_by"] = [a for a, (_, ids) in meshes.items() if np.any(ids == r["id"])]
-    payload = {"query": text, "run": str(run_dir), "scene": _scene_name(run_dir), "results": results}
-
-    plot = None
-    if hits and meshes:
-        plot = _plot_query(run_dir / "plots" / f"query_{query_slug(text)}.png", text, hits[0], meshes,
-                           labels_by_agent, [agent_hit for agent_hit in hits[1:top_k]])
-    payload["plot"] = None if plot is None else str(plot)
-    return QueryResult(payload, plot)
+    picture = None
+    if plot and hits and meshes:
+        labels_by_agent = {agent: index.labels for agent, index in run_map.indexes.items()}
+        picture = _plot_query(run_dir / "plots" / f"query_{query_slug(text)}.png", text, hits[0], meshes,
+                              labels_by_agent, hits[1:top_k])
+    payload["plot"] = None if picture is None else str(picture)
+    return QueryResult(payload, picture)
 
 
 def _scene_name(run_dir: Path) -> str | None:

@@ -333,7 +333,7 @@ def text_encoder():
 
 def test_text_encoder_is_offline_and_ranks_by_meaning(text_encoder):
     v = text_encoder.encode(["chair", "something to sit on", "lamp"])
-    assert v.shape == (3, 384) and np.allclose(np.linalg.norm(v, axis=1), 1.0, atol=1e-5)
+    assert v.shape == (3, text_encoder.dim) and np.allclose(np.linalg.norm(v, axis=1), 1.0, atol=1e-5)
     assert v[0] @ v[1] > v[0] @ v[2]
 
 
@@ -342,7 +342,7 @@ def test_encode_segments_fills_caption_and_visual_features(text_encoder):
     seg = OracleSegmenter(INFOS, SegmentationErrorConfig.none(), seed=0).segment(frame)
     out = encode_segments(seg, frame, text_encoder)
     assert out is seg
-    assert all(s.caption_feature.shape == (384,) and s.visual_feature is None for s in seg.segments)
+    assert all(s.caption_feature.shape == (text_encoder.dim,) and s.visual_feature is None for s in seg.segments)
     expected = text_encoder.encode([s.caption for s in seg.segments])
     assert np.allclose(np.stack([s.caption_feature for s in seg.segments]), expected)
     encode_segments(seg, frame, text_encoder, TinyImageEncoder())

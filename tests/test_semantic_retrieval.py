@@ -149,7 +149,7 @@ def test_functional_query_ranks_the_bed_first(encoder):
     hits = score_instances("somewhere to sleep", make_book(encoder, CAPTIONS), encoder)
     assert hits[0].instance_id == 2 and hits[0].caption == "a soft double bed"
     assert [h.score for h in hits] == sorted((h.score for h in hits), reverse=True)
-    assert len(hits) == 5 and all(h.terms == ("caption",) and h.visual_score is None for h in hits)
+    assert len(hits) == 5 and all(h.terms == ("caption",) and h.visual_score is None for h in hits)  # no labels
 
 
 def test_name_queries_find_their_instance(encoder):
@@ -205,7 +205,7 @@ def write_run(root, encoder, team: bool = False):
 
 def test_query_cli_prints_json_and_draws_the_winner(encoder, tmp_path, capsys):
     run = write_run(tmp_path / "run", encoder)
-    assert main(["query", "--run", str(run), "--top", "3", "the bed"]) == 0
+    assert main(["query", "--run", str(run), "--top", "3", "--plot", "the bed"]) == 0
     out = json.loads(capsys.readouterr().out)
     assert out["query"] == "the bed" and len(out["results"]) == 3
     best = out["results"][0]
@@ -221,7 +221,7 @@ def test_query_cli_prefers_the_team_code_book(encoder, tmp_path, capsys):
     best = json.loads(capsys.readouterr().out)["results"][0]
     assert (best["id"], best["agent"], best["category"]) == (3, "team", "chair")
     assert best["seen_by"] == ["agent_0", "agent_1"]
-    assert (run / "plots" / "query_a_chair.png").is_file()
+    assert not (run / "plots").exists()  # the picture is drawn only with --plot
 
 
 def test_query_cli_errors_exit_2_with_a_clear_message(encoder, tmp_path, capsys):
@@ -238,3 +238,16 @@ def test_query_cli_errors_exit_2_with_a_clear_message(encoder, tmp_path, capsys)
 def test_query_slug():
     assert query_slug("Somewhere to sleep?") == "somewhere_to_sleep"
     assert query_slug("???") == "query"
+
+
+def test_query_cli_answers_a_file_of_queries_and_refuses_another_encoder(encoder, tmp_path, capsys):
+    run = write_run(tmp_path / "run", encoder)
+    queries = tmp_path / "queries.txt"
+    queries.write_text("# everyday queries\nsomewhere to sleep\n\nsomething to sit on\n")
+    assert main(["query", "--run", str(run), "--top", "1", "--queries", str(queries)]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert [o["query"] for o in out] == ["somewhere to sleep", "something to sit on"]
+    assert [o["results"][0]["category"] for o in out] == ["bed", "chair"]
+    other = "minilm" if encoder.name == "mpnet" else "mpnet"
+    assert main(["query", "--run", str(run), "--text-encoder", other, "a bed"]) == 2
+    assert f"made by the {encoder.name!r} text encoder" in capsys.readouterr().err

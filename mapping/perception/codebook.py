@@ -1,7 +1,9 @@
 """The code book: instance id -> (visual feature or none, caption feature, caption text, confidence).
 
 Semantic features live here, not in the networks (paper, sec. III-D). Saved as ``NAME.json`` (ids,
-captions, confidences, labels) beside ``NAME.npz`` (the feature arrays), each written atomically.
+captions, confidences, labels, the text encoder that made the caption features) beside ``NAME.npz``
+(the feature arrays), each written atomically. Caption features of two encoders live in different
+spaces, so a code book knows its encoder (``text_encoder``) and retrieval refuses another one.
 """
 
 from __future__ import annotations
@@ -26,7 +28,7 @@ class CodeBookEntry:
 
     Attributes:
         caption: caption text.
-        caption_feature: (384,) float32 unit vector.
+        caption_feature: (D,) float32 unit vector of the code book's text encoder (768 mpnet, 384 minilm).
         visual_feature: (D,) float32 unit vector, or None when no image-text encoder is loaded.
         confidence: eq. 1-2, in [0, 1].
         label: zero-shot category, filled by the semantic evaluation (None before).
@@ -39,8 +41,26 @@ class CodeBookEntry:
     label: str | None = None
 
 
+ENCODER_BY_DIM = {768: "mpnet", 384: "minilm"}
+"""The text encoder a caption-feature size implies, for code books that do not name theirs."""
+
+
 class CodeBook(dict):
-    """``dict[int, CodeBookEntry]`` with atomic save / load."""
+    """``dict[int, CodeBookEntry]`` with atomic save / load.
+
+    Attributes:
+        text_encoder: name of the text encoder that made the caption features ("mpnet", "minilm"),
+            or None: then ``encoder_name()`` infers it from the feature size.
+    """
+
+    text_encoder: str | None = None
+
+    def encoder_name(self) -> str | None:
+        """``text_encoder`` when set, else the encoder implied by the caption-feature size (None if empty)."""
+        if self.text_encoder is not None or not self:
+            return self.text_encoder
+        dim = int(np.asarray(next(iter(self.values())).caption_feature).size)
+        return ENCODER_BY_DIM.get(dim)
 
     def save(self, directory: str | Path, name: str) -> Path:
         """Write ``directory/name.json`` and ``directory/name.npz``; returns the JSON path."""
@@ -50,7 +70,7 @@ class CodeBook(dict):
         arrays = {f"caption_{i}": np.asarray(self[i].caption_feature, np.float32) for i in ids}
         arrays.update({f"visual_{i}": np.asarray(self[i].visual_feature, np.float32)
                        for i in ids if self[i].visual_feature is not None})
-        meta = {"version": 1, "instances": [{"id": int(i), "caption": self[i].caption,
+        meta = {"version": 2, "text_encoder": self.encoder_name(), "instances": [{"id": int(i), "caption": self[i].caption,
                                               "confidence": float(self[i].confidence), "label": self[i].label,
                                               "has_visual": self[i].visual_feature is not None} for i in ids]}
         npz = directory / f"{name}.npz"
@@ -78,6 +98,7 @@ class CodeBook(dict):
                     book[i] = CodeBookEntry(rec["caption"], arrays[f"caption_{i}"],
                                             arrays[f"visual_{i}"] if rec["has_visual"] else None,
                                             float(rec["confidence"]), rec.get("label"))
+                book.text_encoder = meta.get("text_encoder") or book.encoder_name()  # version 1: by size
         except (ValueError, KeyError, TypeError, OSError) as exc:
             raise CodeBookError(f"corrupt code book {json_path} / {npz_path}: {exc}") from exc
         return book
