@@ -29,3 +29,14 @@ def set_threads(threads: int | None = None, workers: int = 1) -> int:
     if torch.get_num_threads() != n:
         torch.set_num_threads(n)
     return n
+
+
+def flush_denormals() -> bool:
+    """Make the CPU flush denormal floats to zero (x86 SSE3 / ARM), for every torch op after it.
+
+    Measured on this project's mapper: a training step of room0's instances took 1003 ms instead of
+    24 ms once gradients of saturated occupancies decayed into denormal floats, which the CPU handles
+    ~100x slower; flushed to zero they change nothing that matters (|x| < 1.2e-38). Returns whether the
+    CPU supports it.
+    """
+    return bool(torch.set_flush_denormal(True))
