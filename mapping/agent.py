@@ -24,7 +24,7 @@ from mapping.field import OBJECT_FIELD, STRUCTURE_FIELD, InstanceFieldBank, Live
 from mapping.optim import AdamConfig, StackedAdam
 from mapping.keyframes import KeyframeBuffer
 from mapping.losses import DataLossWeights, data_loss
-from mapping.runtime import flush_denormals
+from mapping.runtime import flushed_denormals
 from mapping.render import (CompositeConfig, CompositeRender, RayBundle, SamplerConfig, ray_aabb, render_image,
                             render_occupancy, sample_along_rays)
 
@@ -130,7 +130,6 @@ class MappingAgent:
 
     def __init__(self, config: MappingConfig | None = None, is_structure: Callable[[int], bool] = lambda _: False,
                  device: str = "auto", seed: int = 0, agent_index: int = 0):
-        flush_denormals()  # a 40x slow-down otherwise, see mapping.runtime
         self.config = config or MappingConfig()
         self.is_structure = is_structure
         self.device = resolve_device(device)
@@ -207,8 +206,9 @@ class MappingAgent:
         """Move an instance to ``frame`` (its network refit by distillation, its optimiser state reset)."""
         slot = self.slots[iid]
         bank = self.banks[slot.bank]
-        bank.refit_frames([slot.row], torch.tensor([frame.centre]), torch.tensor([frame.half]),
-                          steps=self.config.refit_steps, generator=self.generator)
+        with flushed_denormals():
+            bank.refit_frames([slot.row], torch.tensor([frame.centre]), torch.tensor([frame.half]),
+                              steps=self.config.refit_steps, generator=self.generator)
         self.optimisers[slot.bank].reset_rows([slot.row])
         slot.frame_origin, slot.frame_version = frame.origin, frame.version
 
@@ -264,8 +264,9 @@ class MappingAgent:
         ``extra_loss`` (a callable returning a scalar tensor) is added to every step's data loss: the
         team's consistency terms (eq. 12-13)."""
         loss = 0.0
-        for _ in range(iterations or self.config.iterations_per_keyframe):
-            loss = self.train_step(extra_loss)
+        with flushed_denormals():  # 40x slower steps otherwise (mapping.runtime)
+            for _ in range(iterations or self.config.iterations_per_keyframe):
+                loss = self.train_step(extra_loss)
         return loss
 
     def trainable_ids(self, bank: str) -> list[int]:

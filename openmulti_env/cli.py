@@ -1,49 +1,39 @@
-"""The ``openmulti`` command line: ``scenes``, ``run`` (``--policy never`` maps every agent alone, after the
-open-vocabulary front end and optional cross-agent alignment) and ``query``; ``reproduce`` and ``train``
-arrive with the multi-agent exchange and the env."""
+"""The ``openmulti`` command line: ``scenes``, ``run`` (a team maps a scene round by round under a scripted
+communication policy) and ``query``; ``reproduce`` and ``train`` arrive with the experiments and the env.
+
+Heavy modules (torch, open3d, the world) are imported inside the commands that need them, so that
+``openmulti query`` starts fast."""
 
 from __future__ import annotations
 
 import argparse
 import json
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
-from tqdm import tqdm
 
-from openmulti_env.results import write_json_atomic
 from mapping.perception.image_encoder import ImageEncoderError
 from mapping.perception.text_encoder import TextEncoderError
-from openmulti_env.team_perception import ALIGNMENT_MODES
-from openmulti_env.run_presets import RUN_PRESETS, world_config
-from openmulti_env.world import World, list_presets, make_scene
-from openmulti_env.world.presets import PRESETS
-from openmulti_env.world.world import MAX_AGENTS
+from policies.scripted import parse_policy
 
-SCRIPTED_POLICIES = ("always", "never", "round_robin", "budget")
+RUN_PRESETS = ("full", "fast", "tiny")  # openmulti_env.run_presets checks it is the same
+MAX_AGENTS = 8  # openmulti_env.world.world.MAX_AGENTS (a test checks they agree)
+
 PENDING = {
-    "reproduce": "the paper's tables need the mapper (#3) and the multi-agent optimisation",
+    "reproduce": "the paper's tables are the experiments issue, on top of the team",
     "train": "training communication schedules needs the PettingZoo env",
 }
 
 
 def check_policy(name: str) -> str:
-    """Validate a policy name: always, never, round_robin, budget, bernoulli:P, or a file path."""
-    if name in SCRIPTED_POLICIES:
-        return name
-    if name.startswith("bernoulli:"):
-        try:
-            p = float(name.split(":", 1)[1])
-        except ValueError:
-            p = -1.0
-        if not 0.0 <= p <= 1.0:
-            raise ValueError(f"policy {name!r}: bernoulli:P needs a success probability P in [0, 1]")
-        return name
-    if Path(name).is_file():
-        return name
-    raise ValueError(f"unknown policy {name!r}: use {', '.join(SCRIPTED_POLICIES)}, bernoulli:P or a trained policy file")
+    """Validate a policy name: always, never, round_robin, budget, bernoulli:P (trained policies run
+    through the env)."""
+    spec = parse_policy(name)
+    if spec.rule == "file":
+        raise ValueError(f"{name}: openmulti run takes the scripted policies (always, never, round_robin, budget, "
+                         "bernoulli:P); trained policies run through the PettingZoo env")
+    return spec.name
 
 
 def _agents(value: str) -> int:
@@ -55,6 +45,10 @@ def _agents(value: str) -> int:
 
 def cmd_scenes(args: argparse.Namespace) -> int:
     """List presets, or describe one scene with its coverage (and optionally render pictures)."""
+    from openmulti_env.run_presets import world_config  # noqa: PLC0415
+    from openmulti_env.world import World, list_presets  # noqa: PLC0415
+    from openmulti_env.world.presets import PRESETS  # noqa: PLC0415
+
     if args.scene is None:
         for name in list_presets():
             print(f"{name:<9} {PRESETS[name]}")
@@ -88,82 +82,37 @@ def cmd_scenes(args: argparse.Namespace) -> int:
 
 
 def cmd_run(args: argparse.Namespace) -> int:
-    """The main job: with policy ``never`` every agent maps alone and metrics.json is written; other
-    policies need the multi-agent exchange (not built yet), so only the world part runs for them."""
-    policy = check_policy(args.policy)
-    out = Path(args.out)
-    if policy == "never":
-        return _run_mapping(args, out)
-    start = time.perf_counter()
-    print(f"[openmulti] scene {args.scene}, {args.agents} agents, preset {args.preset}, seed {args.seed}, policy {policy}")
-    t0 = time.perf_counter()
-    world = World.build(args.scene, seed=args.seed, config=world_config(args.preset, args.agents))
-    print(f"[openmulti] world built in {time.perf_counter() - t0:.1f} s: {len(world.scene.instances)} instances, "
-          f"{world.surface.visible_fraction:.0%} of the surface observable")
-    samples = {}
-    total = sum(len(p) for p in world.agent_poses)
-    with tqdm(total=total, desc="rendering frames", unit="frame") as bar:
-        for a, poses in enumerate(world.agent_poses):
-            keep = set(np.linspace(0, len(poses) - 1, 3).astype(int).tolist())
-            for i in range(len(poses)):
-                frame = world.render(a, i)
-                if i in keep:
-                    samples.setdefault(a, []).append(frame)
-                bar.update(1)
-    report = world.coverage()
-
-    from openmulti_env.world.plots import save_frames, save_world_overview  # noqa: PLC0415
-
-    (out / "meshes").mkdir(parents=True, exist_ok=True)
-    world.scene.mesh().export(out / "meshes" / "gt_scene.ply")
-    world.surface.culled_mesh().export(out / "meshes" / "gt_observable.ply")
-    gt, _, _ = world.surface.sample_points(20000, seed=args.seed)
-    save_world_overview(out / "plots" / "top_down.png", world.scene, world.agent_poses, gt, world.caster,
-                        world.intrinsics)
-    for a, frames in samples.items():
-        save_frames(out / "plots" / f"frames_agent_{a}.png", frames, f"{world.scene.name} agent_{a}")
-    cov = report.as_dict()
-    write_json_atomic(out / "world.json", {
-        "scene": world.scene.describe(), "agents": args.agents, "preset": args.preset, "seed": args.seed,
-        "policy": policy, "frames_rendered": total, "coverage": cov, "wall_s": time.perf_counter() - start,
-        "stages_run": ["scene", "culling", "paths", "rendering", "coverage"],
-    })
-    print()
-    print(f"{'agent':<10} {'frames':>6} {'coverage %':>10}")
-    for a, poses in enumerate(world.agent_poses):
-        print(f"agent_{a:<4} {len(poses):>6} {cov['per_agent_pct'][a]:>10.1f}")
-    print(f"{'team':<10} {total:>6} {cov['union_pct']:>10.1f}")
-    print()
-    print("Ran: scene, observable ground truth, agent paths, RGB-D + instance rendering, coverage.")
-    print(f"Not run: mapping. Policy {policy!r} needs the multi-agent exchange of parameters and rays, which is"
-          " not built yet, so no metrics.json was written; --policy never maps every agent alone.")
-    print(f"Wrote {out}/world.json, {out}/meshes/, {out}/plots/ in {time.perf_counter() - start:.1f} s")
-    world.close()
-    return 0
-
-
-def _run_mapping(args: argparse.Namespace, out: Path) -> int:
+    """The main job: the team maps the scene round by round under the policy; prints a results table."""
     from openmulti_env.run import run  # noqa: PLC0415
 
+    policy = check_policy(args.policy)
+    out = Path(args.out)
     print(f"[openmulti] scene {args.scene}, {args.agents} agents, preset {args.preset}, seed {args.seed}, "
-          f"policy never (each agent maps alone)")
-    result = run(args.scene, args.agents, "never", args.preset, args.seed, out, device=args.device,
+          f"policy {policy}, alignment {args.alignment}, consistency {args.consistency}"
+          f"{'' if args.cross_rendering else ', no cross rendering'}")
+    result = run(args.scene, args.agents, policy, args.preset, args.seed, out, device=args.device,
                  alignment=args.alignment, segmentation_errors=not args.perfect_masks,
-                 clip_checkpoint=args.clip_checkpoint)
+                 clip_checkpoint=args.clip_checkpoint, comm_budget_mb=args.comm_budget_mb,
+                 consistency=args.consistency, cross_rendering=args.cross_rendering, float16=args.float16,
+                 changed_only=args.changed_only, threads=args.threads)
     print()
     print(f"{'agent':<10} {'acc [cm]':>9} {'comp [cm]':>10} {'comp ratio [%]':>15} {'F-mIoU':>7} {'F-mAcc':>7} "
-          f"{'instances':>10}")
+          f"{'instances':>10} {'compute [s]':>12}")
     for name, m in result["agents"].items():
         print(f"{name:<10} {_fmt(m['acc_cm']):>9} {_fmt(m['comp_cm']):>10} {_fmt(m['comp_ratio']):>15} "
-              f"{_fmt(m['f_miou']):>7} {_fmt(m['f_macc']):>7} {m['instances']:>10}")
+              f"{_fmt(m['f_miou']):>7} {_fmt(m['f_macc']):>7} {m['instances']:>10} "
+              f"{result['compute_s'][name]:>12.1f}")
     mean, team = result["mean"], result["team"]
     print(f"{'mean':<10} {_fmt(mean['acc_cm']):>9} {_fmt(mean['comp_cm']):>10} {_fmt(mean['comp_ratio']):>15} "
           f"{_fmt(mean['f_miou']):>7} {_fmt(mean['f_macc']):>7}")
-    print(f"{'team map':<10} {'':>9} {'':>10} {'':>15} {_fmt(team['f_miou']):>7} {_fmt(team['f_macc']):>7} "
-          f"{team['global_instances']:>10}")
-    print(f"\nalignment {args.alignment}: {result['bytes_sent_total'] / 1e6:.2f} MB of point clouds exchanged")
-    print(f"Wrote {out}/metrics.json, {out}/meshes/, {out}/codebook/, {out}/plots/ in {result['wall_s']:.1f} s; "
-          f'try: openmulti query --run {out} "somewhere to sit"')
+    print(f"{'all maps':<10} {'':>9} {'':>10} {'':>15} {_fmt(team['f_miou']):>7} {_fmt(team['f_macc']):>7}")
+    msgs = result["messages"]
+    print(f"\n{result['rounds']} rounds; {result['bytes_sent_total'] / 1e6:.2f} MB sent "
+          f"({result['bytes_per_round_per_agent_mean'] / 1e6:.2f} MB per round per agent); messages delivered "
+          f"{msgs['delivered']}, dropped {msgs['dropped']}, over budget {msgs['over_budget']}; "
+          f"fleet time {result['fleet_s']:.1f} s")
+    print(f"Wrote {out}/metrics.json, {out}/rounds.json, {out}/meshes/, {out}/codebook/, {out}/plots/ in "
+          f"{result['wall_s']:.1f} s; try: openmulti query --run {out} \"somewhere to sit\"")
     return 0
 
 
@@ -212,9 +161,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", default="runs/demo")
     p.add_argument("--device", default="auto", help="cpu, cuda or auto (cuda when available)")
-    p.add_argument("--alignment", choices=ALIGNMENT_MODES, default="none",
-                   help="cross-agent instance alignment before mapping: none (each agent alone), paper "
-                        "(agents exchange instance point clouds once, sec. III-C) or oracle (ground-truth ids)")
+    p.add_argument("--alignment", choices=("paper", "none"), default="paper",
+                   help="align arrived instances (paper, sec. III-C) or adopt each as a new one (none)")
+    p.add_argument("--consistency", choices=("consensus", "dinno", "dsgd", "none"), default="consensus",
+                   help="parameter consistency, eq. 12 (consensus = MACIM's)")
+    p.add_argument("--no-cross-rendering", dest="cross_rendering", action="store_false",
+                   help="no render consistency on shared rays (eq. 13): the ablation")
+    p.add_argument("--comm-budget-mb", type=float, metavar="MB", help="bytes each agent may send over the run")
+    p.add_argument("--float16", action="store_true", help="send network vectors as float16")
+    p.add_argument("--changed-only", type=float, metavar="REL",
+                   help="skip instances whose parameters moved less than REL (relative L2) since last sent")
+    p.add_argument("--threads", type=int, help="torch threads (default: all cores)")
     p.add_argument("--clip-checkpoint", metavar="PATH",
                    help="local open_clip checkpoint: masks get visual features (optional extra openmulti[clip])")
     p.add_argument("--perfect-masks", action="store_true",

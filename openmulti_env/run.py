@@ -1,12 +1,11 @@
-"""The main job: build the world, perceive (segment, caption, fuse, align), map, mesh, evaluate, write results.
+"""The main job: build the world, run the team round by round under a scripted policy, mesh, evaluate,
+write results.
 
-Today each agent maps alone (policy ``never``: no parameters or rays are exchanged); the exchange
-arrives with the multi-agent optimisation. Before mapping, the simulated open-vocabulary front end
-runs for every agent (masks with the seeded error model, captions, SBERT, cross-frame fusion); with
-``alignment="paper"`` the agents also exchange their instance point clouds once and apply the
-Cross-Agent Instance Alignment, so every agent maps on corrected masks with team-wide ids. A
-finished agent's map is checkpointed, so an interrupted run started again with the same ``out``
-directory resumes after the last finished agent (the front end is deterministic and runs again).
+Each round every agent reads its next frames (rendered, segmented with the seeded error model,
+captioned, fused online), trains, and exchanges what the policy asks for through the channel
+(``mapping.team``); the team is checkpointed every few rounds, so an interrupted run started again
+with the same ``out`` directory and settings resumes after the last saved round. ``map_agent`` (one
+agent mapping a list of frames alone) serves the dataset path.
 """
 
 from __future__ import annotations
@@ -23,6 +22,9 @@ import torch
 from tqdm import tqdm
 
 from mapping.agent import MappingAgent
+from mapping.runtime import set_threads
+from mapping.team import ChannelConfig, ConsistencyConfig, ExchangeConfig, Team
+from mapping.team.consistency import CONSISTENCY_ALGORITHMS
 from mapping.checkpoint import CheckpointError
 from mapping.data import Frame
 from mapping.evaluate import evaluate_mesh, export_scene_mesh, merge_instance_meshes
@@ -30,14 +32,19 @@ from mapping.evaluate.semantic import semantic_metrics, zero_shot_labels
 from mapping.perception import CodeBook, shared_text_encoder
 from mapping.perception.errors import SegmentationErrorConfig
 from mapping.perception.image_encoder import VisualFeatureNotice, load_image_encoder
-from openmulti_env.run_presets import mapping_config, world_config
+from openmulti_env.actions import actions_to_plan
+from openmulti_env.run_presets import mapping_config, team_config, world_config
 from openmulti_env.results import write_json_atomic
-from openmulti_env.team_perception import (ALIGNMENT_MODES, FrontEndConfig, align_team, category_vocabulary,
-                                           perceive_team, semantic_ground_truth, structure_ids)
+from openmulti_env.sim_team import world_streams, world_vocabulary
+from openmulti_env.team_perception import category_vocabulary, semantic_ground_truth
+from policies.scripted import ScriptedPolicy, parse_policy
 from openmulti_env.world import World
 from openmulti_env.world.visibility import cull_to_viewpoints
 
 METRIC_KEYS = ("acc_cm", "comp_cm", "comp_ratio", "f_miou", "f_macc")
+RUN_ALIGNMENT_MODES = ("paper", "none")
+TEAM_ID_STRIDE = 100_000
+"""Agent k's instance i is ``k * TEAM_ID_STRIDE + i`` in the union of all agents' maps."""
 
 
 def map_agent(frames: list[Frame], labels_of: Callable[[int], np.ndarray], is_structure: Callable[[int], bool],
@@ -62,20 +69,33 @@ def map_agent(frames: list[Frame], labels_of: Callable[[int], np.ndarray], is_st
 
 
 def run(scene: str, agents: int, policy: str, preset: str, seed: int, out: Path, device: str = "auto",
-        alignment: str = "none", segmentation_errors: bool = True, clip_checkpoint: str | None = None) -> dict:
+        alignment: str = "paper", segmentation_errors: bool = True, clip_checkpoint: str | None = None,
+        comm_budget_mb: float | None = None, consistency: str = "consensus", cross_rendering: bool = True,
+        float16: bool = False, changed_only: float | None = None, threads: int | None = None,
+        checkpoint_every: int = 5, progress: bool = True) -> dict:
     """The whole run; returns the metrics dictionary written to ``out/metrics.json``.
 
     Args:
-        alignment: ``none`` (each agent keeps its own instances), ``paper`` (agents exchange instance
-            point clouds once and align, sec. III-C) or ``oracle`` (ground-truth ids, an upper bound).
+        policy: a scripted policy name (``policies.scripted``): always, never, bernoulli:P, round_robin,
+            budget.
+        alignment: ``paper`` (arrived instances are aligned, sec. III-C) or ``none`` (every arrived
+            instance is adopted as a new one: the ablation).
         segmentation_errors: apply the front end's default error model (else perfect masks).
         clip_checkpoint: local open_clip checkpoint for visual features (None: caption features only).
+        comm_budget_mb: bytes each agent may send over the run (None: unlimited).
+        consistency: parameter consistency (eq. 12): consensus, dinno, dsgd or none.
+        cross_rendering: Cross Rendering Supervision on shared rays (eq. 13).
+        float16, changed_only: what parameter messages carry (``ExchangeConfig``).
+        threads: torch threads (default: all cores).
+        checkpoint_every: save the team every this many rounds (an interrupted run resumes from it).
     """
-    if policy != "never":
-        raise ValueError(f"policy {policy!r} needs the multi-agent exchange, which is not built yet; "
-                         "use --policy never (each agent maps alone)")
-    if alignment not in ALIGNMENT_MODES:
-        raise ValueError(f"unknown alignment {alignment!r}; choose one of {ALIGNMENT_MODES}")
+    spec = parse_policy(policy)
+    if alignment not in RUN_ALIGNMENT_MODES:
+        raise ValueError(f"unknown alignment {alignment!r} for a team run; choose one of {RUN_ALIGNMENT_MODES} "
+                         "(the ground-truth 'oracle' alignment is in benchmarks/bench_alignment.py)")
+    if consistency not in CONSISTENCY_ALGORITHMS:
+        raise ValueError(f"unknown consistency {consistency!r}; choose one of {CONSISTENCY_ALGORITHMS}")
+    set_threads(threads)
     start = time.perf_counter()
     torch.manual_seed(seed)
     with warnings.catch_warnings(record=True) as notices:
@@ -84,75 +104,130 @@ def run(scene: str, agents: int, policy: str, preset: str, seed: int, out: Path,
     for notice in notices:  # said once, as one line
         print(f"[openmulti] note: {notice.message}")
     world = World.build(scene, seed=seed, config=world_config(preset, agents))
-    _forget_other_runs(out, {"scene": scene, "agents": agents, "preset": preset, "seed": seed, "alignment": alignment,
-                             "segmentation_errors": segmentation_errors, "clip_checkpoint": clip_checkpoint})
+    settings = {"scene": scene, "agents": agents, "policy": policy, "preset": preset, "seed": seed,
+                "alignment": alignment, "segmentation_errors": segmentation_errors, "clip_checkpoint": clip_checkpoint,
+                "comm_budget_mb": comm_budget_mb, "consistency": consistency, "cross_rendering": cross_rendering,
+                "float16": float16, "changed_only": changed_only}
+    _forget_other_runs(out, settings)
     print(f"[openmulti] world {world.scene.name}: {len(world.scene.instances)} instances, "
           f"{world.num_agents} agent(s), {sum(len(p) for p in world.agent_poses)} frames")
     encoder = shared_text_encoder()
-    front = FrontEndConfig(errors=SegmentationErrorConfig() if segmentation_errors else SegmentationErrorConfig.none())
-    perception = perceive_team(world, seed, front, encoder, image_encoder=image_encoder)
-    aligned = align_team(perception, alignment, front.alignment)
+    config = team_config(preset, alignment=alignment == "paper",
+                         consistency=ConsistencyConfig(algorithm=consistency, cross_rendering=cross_rendering),
+                         exchange=ExchangeConfig(float16=float16, changed_only=changed_only))
+    budget = None if comm_budget_mb is None else comm_budget_mb * 1e6
+    team = Team(world_streams(world, seed, segmentation_errors, text_encoder=encoder, image_encoder=image_encoder),
+                config, world_vocabulary(world, encoder), seed=seed,
+                channel=ChannelConfig(spec.success_probability, budget), device=device)
+    reports = _run_rounds(team, ScriptedPolicy(spec, world.num_agents), out / "checkpoints" / "team.pt",
+                          checkpoint_every, progress)
+    result = _evaluate(world, team, seed, out, encoder, image_encoder)
+    bytes_per_round = [int(sum(r["bytes_sent"])) for r in reports]
+    result.update({
+        "bytes_sent_total": int(team.channel.bytes_sent.sum()),
+        "bytes_per_round": bytes_per_round,
+        "bytes_per_round_per_agent_mean": float(np.mean(bytes_per_round) / max(world.num_agents, 1)) if reports else 0.0,
+        "messages": {k: int(sum(r[k] for r in reports)) for k in ("delivered", "dropped", "over_budget")},
+        "fleet_s": float(sum(r["fleet_s"] for r in reports)),
+        "compute_s": {f"agent_{a}": float(sum(r["compute_s"][a] for r in reports)) for a in range(world.num_agents)},
+        "rounds": len(reports),
+        "wall_s": time.perf_counter() - start,
+        "config": {**settings, "error_rates": asdict(SegmentationErrorConfig() if segmentation_errors
+                                                     else SegmentationErrorConfig.none()),
+                   "team": _plain(asdict(config))},
+    })
+    write_json_atomic(out / "rounds.json", {"rounds": reports})
+    write_json_atomic(out / "metrics.json", result)
+    from openmulti_env.world.plots import save_round_bytes  # noqa: PLC0415
+
+    save_round_bytes(out / "plots" / "bytes_per_round.png", reports, f"{world.scene.name}: policy {policy}")
+    world.close()
+    return result
+
+
+def _run_rounds(team: Team, policy: ScriptedPolicy, checkpoint: Path, every: int, progress: bool) -> list[dict]:
+    """Rounds until the paths end, resuming from ``checkpoint`` when it exists; per-round reports."""
+    reports: list[dict] = []
+    if checkpoint.is_file():
+        try:
+            reports = team.load(checkpoint)["reports"]
+            print(f"[openmulti] resumed the team after round {team.round_index} from {checkpoint}")
+        except CheckpointError as exc:
+            print(f"[openmulti] ignoring unusable checkpoint ({exc}); starting again")
+    n = team.num_agents
+    with tqdm(total=team.rounds_total(), initial=team.round_index, desc="rounds", unit="round",
+              disable=not progress) as bar:
+        while not team.done:
+            infos = {f"agent_{a}": {"budget_left_mb": team.channel.budget_left(a) / 1e6} for a in range(n)}
+            plan = actions_to_plan(policy(infos, team.round_index), [f"agent_{a}" for a in range(n)])
+            report = team.round(plan).as_dict()
+            report.pop("deliveries")
+            reports.append(report)
+            bar.set_postfix(MB=f"{sum(report['bytes_sent']) / 1e6:.1f}", fleet_s=f"{report['fleet_s']:.1f}",
+                            instances=sum(len(m.mapper.live_ids()) for m in team.members))
+            bar.update(1)
+            if every and (team.round_index % every == 0 or team.done):
+                team.save(checkpoint, extra={"reports": reports})
+    return reports
+
+
+def _evaluate(world: World, team: Team, seed: int, out: Path, encoder, image_encoder) -> dict:
+    """Mesh, cull and score every agent's own map against the whole observable ground truth (the
+    paper's per-agent metrics, averaged); the team map's semantics; code books; pictures."""
     vocabulary = category_vocabulary(world)
-    labels = zero_shot_labels(aligned.codebook, vocabulary, encoder, image_encoder)
-    structure = structure_ids(aligned.codebook, labels)
     gt = world.surface.culled_mesh()
     gt_points, gt_labels = semantic_ground_truth(world, 200_000, seed)
     (out / "meshes").mkdir(parents=True, exist_ok=True)
     gt.export(out / "meshes" / "gt_observable.ply")
-    per_agent, meshes, team_points, team_ids = {}, [], [], []
-    for a in range(world.num_agents):
-        name = f"agent_{a}"
-        mapper = map_agent(perception.frames[name], aligned.agents[name].corrected_labels, structure.__contains__,
-                           name, preset, seed * 100 + a, out / "checkpoints" / f"{name}.pt", device)
+    per_agent, meshes, team_points, team_ids, team_labels = {}, [], [], [], {}
+    for member in tqdm(team.members, desc="evaluating", unit="agent"):
+        name, mapper = member.name, member.mapper
+        book = member.codebook()
+        labels = zero_shot_labels(book, vocabulary, encoder, image_encoder) if book else {}
         mesh, ids = merge_instance_meshes(mapper.instance_meshes())
         has_mesh = len(mesh.faces) > 0
         if has_mesh:
             export_scene_mesh(out / "meshes" / f"{name}.ply", mesh, ids)
             team_points.append(np.asarray(mesh.vertices))
-            team_ids.append(ids)
-        book = _labelled(aligned.agents[name].codebook, labels)
-        book.save(out / "codebook", name)
+            team_ids.append(ids + member.index * TEAM_ID_STRIDE)
+            team_labels.update({iid + member.index * TEAM_ID_STRIDE: lab for iid, lab in labels.items()})
+        _labelled(book, labels).save(out / "codebook", name)
         semantic = semantic_metrics(gt_points, gt_labels, np.asarray(mesh.vertices), ids, labels)
         # score what free space can see of the reconstruction, as the ground truth is culled (README)
         culled = cull_to_viewpoints(mesh, world.surface.viewpoints) if has_mesh else None
         metrics = evaluate_mesh(culled if culled is not None and len(culled.faces) else None, gt, seed=seed)
         raw = evaluate_mesh(mesh if has_mesh else None, gt, seed=seed)
+        adopted = sum(1 for i in mapper.live_ids() if not mapper.keyframes.has_pixels(i))
         per_agent[name] = {"acc_cm": _finite(metrics.acc_cm), "comp_cm": _finite(metrics.comp_cm),
                            "comp_ratio": float(metrics.comp_ratio), "f_miou": semantic.f_miou,
                            "f_macc": semantic.f_macc, "acc_cm_unculled": _finite(raw.acc_cm),
-                           "instances": len(mapper.slots)}
+                           "instances": len(mapper.live_ids()), "instances_without_own_pixels": adopted}
         meshes.append(mesh)
-        _save_rendered_views(out / "plots" / f"rendered_views_{name}.png", world, a, mapper)
-    team = semantic_metrics(gt_points, gt_labels, np.concatenate(team_points) if team_points else np.zeros((0, 3)),
-                            np.concatenate(team_ids) if team_ids else np.zeros(0, np.int64), labels)
-    if alignment != "none":
-        _labelled(aligned.codebook, labels).save(out / "codebook", "team")
-    else:  # agents' ids are their own: a team code book of an earlier run must not answer queries
-        for suffix in (".json", ".npz"):
-            (out / "codebook" / f"team{suffix}").unlink(missing_ok=True)
-    mean = {k: _mean([m[k] for m in per_agent.values()]) for k in METRIC_KEYS}
-    result = {
-        "agents": per_agent, "mean": mean, "bytes_sent_total": int(sum(aligned.bytes_sent.values())),
-        "wall_s": time.perf_counter() - start,
-        "team": {"f_miou": team.f_miou, "f_macc": team.f_macc, "global_instances": len(aligned.codebook),
-                 "per_class": team.as_dict()["per_class"]},
-        "config": {"scene": scene, "agents": agents, "policy": policy, "preset": preset, "seed": seed,
-                   "alignment": alignment, "segmentation_errors": segmentation_errors,
-                   "error_rates": asdict(front.errors),
-                   "mapping": {k: v for k, v in asdict(mapping_config(preset)).items()}},
-        "notes": "Meshes are culled to what the free-space viewpoints can see; acc_cm_unculled scores the whole "
-                 "reconstruction. F-mIoU/F-mAcc: each ground-truth point takes the zero-shot label of the "
-                 "nearest reconstructed vertex's instance. bytes_sent_total counts the alignment's point-cloud "
-                 "messages (policy never sends no parameters or rays).",
-    }
-    write_json_atomic(out / "metrics.json", result)
+        _save_rendered_views(out / "plots" / f"rendered_views_{name}.png", world, member.index, mapper)
+    for suffix in (".json", ".npz"):  # agents' ids are their own: no team code book answers queries
+        (out / "codebook" / f"team{suffix}").unlink(missing_ok=True)
+    union = semantic_metrics(gt_points, gt_labels, np.concatenate(team_points) if team_points else np.zeros((0, 3)),
+                             np.concatenate(team_ids) if team_ids else np.zeros(0, np.int64), team_labels)
     from openmulti_env.world.plots import save_reconstruction_views, save_semantic_classes  # noqa: PLC0415
 
     save_reconstruction_views(out / "plots" / "reconstruction_top_down.png", gt, meshes)
-    save_semantic_classes(out / "plots" / "semantic_per_class.png", team, f"{world.scene.name}: team map, "
-                          f"alignment {alignment}")
-    world.close()
-    return result
+    save_semantic_classes(out / "plots" / "semantic_per_class.png", union, f"{world.scene.name}: all agents' maps")
+    return {"agents": per_agent, "mean": {k: _mean([m[k] for m in per_agent.values()]) for k in METRIC_KEYS},
+            "team": {"f_miou": union.f_miou, "f_macc": union.f_macc, "per_class": union.as_dict()["per_class"]},
+            "notes": "Per-agent metrics: each agent's own map against the whole observable ground truth; mean = "
+                     "their average (as the paper). Meshes are culled to what the free-space viewpoints can see; "
+                     "acc_cm_unculled scores the whole reconstruction. bytes_* count the serialised parameter and "
+                     "ray messages (and the clouds inside them). fleet_s: per round, the slowest agent's local "
+                     "phase + the exchange + the slowest consistency phase, summed."}
+
+
+def _plain(value):
+    """Config dicts for JSON (tuples and frozensets as lists)."""
+    if isinstance(value, dict):
+        return {k: _plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple, set, frozenset)):
+        return [_plain(v) for v in value]
+    return value
 
 
 def _forget_other_runs(out: Path, settings: dict) -> None:
@@ -163,7 +238,7 @@ def _forget_other_runs(out: Path, settings: dict) -> None:
         same = json.loads(path.read_text()) == settings
     except (OSError, ValueError):  # no record (or an unreadable one): the checkpoints cannot be trusted
         same = False
-    stale = [] if same else sorted((out / "checkpoints").glob("agent_*.pt"))
+    stale = [] if same else sorted((out / "checkpoints").glob("*.pt"))
     for ckpt in stale:
         ckpt.unlink()
     if stale:

@@ -6,6 +6,7 @@ from __future__ import annotations
 from dataclasses import replace
 
 from mapping.agent import MappingConfig
+from mapping.team import TeamConfig
 from openmulti_env.world.paths import PathConfig
 from openmulti_env.world.sensor import SensorConfig
 from openmulti_env.world.world import WorldConfig
@@ -36,3 +37,19 @@ def mapping_config(preset: str) -> MappingConfig:
         return MappingConfig(keyframe_every=4, iterations_per_keyframe=10, rays_per_object=60, rays_per_structure=120,
                              object_voxel_m=0.02, structure_voxel_m=0.04)
     raise ValueError(f"unknown preset {preset!r}; choose one of {RUN_PRESETS}")
+
+
+def frames_per_round(preset: str) -> int:
+    """Frames each agent reads per round: one keyframe per round on ``fast``, five on ``full``."""
+    return {"full": 10, "fast": 5, "tiny": 4}[_known(preset)]
+
+
+def team_config(preset: str, **options) -> TeamConfig:
+    """The team settings of a run preset; ``options`` replace TeamConfig fields (e.g. ``consistency``)."""
+    return TeamConfig(mapping=mapping_config(preset), frames_per_round=frames_per_round(preset), **options)
+
+
+def _known(preset: str) -> str:
+    if preset not in RUN_PRESETS:
+        raise ValueError(f"unknown preset {preset!r}; choose one of {RUN_PRESETS}")
+    return preset

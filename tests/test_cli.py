@@ -21,16 +21,12 @@ def test_scenes_json_describes_instances_and_coverage(capsys, tmp_path):
     assert (tmp_path / "frames_agent_1.png").exists()
 
 
-def test_run_writes_world_results_and_says_what_it_ran(capsys, tmp_path):
-    out = tmp_path / "run"
-    assert main(["run", "--scene", "tiny", "--agents", "2", "--preset", "tiny", "--out", str(out)]) == 0
-    text = capsys.readouterr().out
-    assert "Not run: mapping" in text and "team" in text
-    world = json.loads((out / "world.json").read_text())
-    assert world["frames_rendered"] == 48 and "coverage" in world
-    assert (out / "meshes" / "gt_observable.ply").stat().st_size > 0
-    assert (out / "plots" / "top_down.png").exists()
-    assert not (out / "metrics.json").exists()  # no mapper yet: no pretend metrics
+def test_cli_constants_agree_with_the_modules_they_stand_for():
+    from openmulti_env import cli
+    from openmulti_env.run_presets import RUN_PRESETS
+    from openmulti_env.world.world import MAX_AGENTS
+
+    assert cli.RUN_PRESETS == RUN_PRESETS and cli.MAX_AGENTS == MAX_AGENTS
 
 
 def test_bad_input_gives_clear_errors(capsys, tmp_path):
@@ -44,13 +40,13 @@ def test_bad_input_gives_clear_errors(capsys, tmp_path):
     assert "missing" in capsys.readouterr().err
 
 
-def test_mapping_run_writes_metrics_and_resumes(capsys, tmp_path):
+def test_team_run_writes_metrics_answers_queries_and_resumes(capsys, tmp_path):
     out = tmp_path / "map"
-    args = ["run", "--scene", "tiny", "--agents", "2", "--preset", "tiny", "--policy", "never", "--out", str(out),
+    args = ["run", "--scene", "tiny", "--agents", "2", "--preset", "tiny", "--policy", "always", "--out", str(out),
             "--device", "cpu"]
     assert main(args) == 0
     first = capsys.readouterr().out
-    assert "comp ratio" in first and "mean" in first
+    assert "comp ratio" in first and "mean" in first and "fleet time" in first
     metrics = json.loads((out / "metrics.json").read_text())
     assert set(metrics["agents"]) == {"agent_0", "agent_1"}
     for m in list(metrics["agents"].values()) + [metrics["mean"]]:
@@ -58,25 +54,41 @@ def test_mapping_run_writes_metrics_and_resumes(capsys, tmp_path):
         assert 0.0 < m["comp_ratio"] <= 100.0 and m["acc_cm"] > 0
         assert 0.0 < m["f_miou"] <= 100.0 and 0.0 < m["f_macc"] <= 100.0
     assert 0.0 < metrics["team"]["f_miou"] <= 100.0 and metrics["team"]["per_class"]
-    assert metrics["bytes_sent_total"] == 0 and metrics["wall_s"] > 0
-    assert metrics["config"]["policy"] == "never"
+    assert metrics["bytes_sent_total"] == sum(metrics["bytes_per_round"]) > 0 and metrics["wall_s"] > 0
+    assert metrics["rounds"] == len(metrics["bytes_per_round"]) == 6 and metrics["fleet_s"] > 0
+    assert metrics["config"]["policy"] == "always" and metrics["messages"]["delivered"] == 4 * 6
+    rounds = json.loads((out / "rounds.json").read_text())["rounds"]
+    assert [r["round"] for r in rounds] == list(range(6))
     assert (out / "meshes" / "agent_0.ply").exists() and (out / "plots" / "reconstruction_top_down.png").exists()
     assert (out / "plots" / "rendered_views_agent_1.png").stat().st_size > 10_000
+    assert (out / "plots" / "bytes_per_round.png").stat().st_size > 10_000
     assert (out / "plots" / "semantic_per_class.png").exists() and (out / "codebook" / "agent_1.json").exists()
     # the run's code books answer open-vocabulary queries
     assert main(["query", "--run", str(out), "the floor", "--top", "2"]) == 0
     printed = capsys.readouterr().out
     hits = json.loads(printed[printed.index("{"):])
     assert hits["results"][0]["category"] == "floor"
-    # a second run in the same directory reloads the finished maps instead of mapping again
+    # a second run in the same directory resumes after the last saved round
     assert main(args) == 0
-    assert capsys.readouterr().out.count("resumed its finished map") == 2
+    assert "resumed the team after round 6" in capsys.readouterr().out
     again = json.loads((out / "metrics.json").read_text())
-    assert again["agents"] == metrics["agents"]
-    # other settings in the same directory: the old maps are not reused, and the team ids answer queries
-    assert main(args + ["--alignment", "paper"]) == 0
+    assert again["agents"] == metrics["agents"] and again["bytes_per_round"] == metrics["bytes_per_round"]
+    # other settings in the same directory: the old team is not reused
+    assert main(args + ["--no-cross-rendering"]) == 0
     printed = capsys.readouterr().out
     assert "settings differ" in printed and "resumed" not in printed
-    aligned = json.loads((out / "metrics.json").read_text())
-    assert aligned["config"]["alignment"] == "paper" and aligned["bytes_sent_total"] > 0
-    assert (out / "codebook" / "team.json").exists()
+
+
+def test_every_scripted_policy_runs_rounds_on_the_tiny_world(tmp_path):
+    from openmulti_env.run import run
+
+    sent = {}
+    for policy in ("never", "round_robin", "bernoulli:0.5", "budget"):
+        result = run("tiny", 3, policy, "tiny", 0, tmp_path / policy.replace(":", "_"), device="cpu",
+                     comm_budget_mb=1.0 if policy == "budget" else None, progress=False)
+        sent[policy] = result
+        assert result["rounds"] == 6
+    assert sent["never"]["bytes_sent_total"] == 0
+    assert sent["bernoulli:0.5"]["messages"]["dropped"] > 0
+    assert sent["budget"]["messages"]["over_budget"] > 0
+    assert max(sent["budget"]["bytes_per_round"]) > 0 and sent["budget"]["bytes_sent_total"] <= 3 * 1e6

@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from mapping.alignment.align import AlignmentConfig
-from mapping.alignment.graph import InstanceCollaborativeGraph, Node
+from mapping.alignment.graph import InstanceCollaborativeGraph
 
 
 @dataclass(frozen=True)

@@ -163,3 +163,27 @@ def save_semantic_classes(path: str | Path, metrics, title: str, top: int = 20) 
     ax.legend(loc="upper right")
     return _save_figure(fig, path, f"{title}\nF-mIoU {metrics.f_miou:.1f}, F-mAcc {metrics.f_macc:.1f} "
                                    "(class: share of ground-truth points)")
+
+
+def save_round_bytes(path: str | Path, reports: list[dict], title: str = "") -> Path:
+    """Bytes each agent sent per round (stacked), and each agent's own compute seconds per round."""
+    fig, (ax_bytes, ax_time) = plt.subplots(1, 2, figsize=(11, 3.8))
+    if reports:
+        rounds = np.arange(len(reports))
+        sent = np.array([r["bytes_sent"] for r in reports], np.float64) / 1e6  # (T, N)
+        bottom = np.zeros(len(reports))
+        for a in range(sent.shape[1]):
+            ax_bytes.bar(rounds, sent[:, a], bottom=bottom, label=f"agent_{a}")
+            bottom += sent[:, a]
+        compute = np.array([r["compute_s"] for r in reports], np.float64)
+        for a in range(compute.shape[1]):
+            ax_time.plot(rounds, compute[:, a], label=f"agent_{a}")
+        ax_time.plot(rounds, [r["fleet_s"] for r in reports], "k--", label="fleet")
+        ax_bytes.legend(fontsize=7)
+        ax_time.legend(fontsize=7)
+    ax_bytes.set_xlabel("round")
+    ax_bytes.set_ylabel("MB sent")
+    ax_time.set_xlabel("round")
+    ax_time.set_ylabel("compute s")
+    fig.tight_layout()
+    return _save_figure(fig, path, title)
