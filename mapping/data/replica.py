@@ -33,7 +33,7 @@ from mapping.data._io import (
     require_dir,
 )
 from mapping.data.frame import Intrinsics
-from mapping.data.loaders import FrameFiles, ReadSpec, RGBDDataset, check_depth_scale, select
+from mapping.data.dataset import FrameFiles, ReadSpec, RGBDDataset, check_depth_scale, select
 
 #: The camera of the Replica renderings used by vMAP, iMAP and NICE-SLAM.
 REPLICA_INTRINSICS = Intrinsics(width=1200, height=680, fx=600.0, fy=600.0, cx=599.5, cy=339.5)

@@ -29,7 +29,7 @@ from mapping.data._io import (
     require_dir,
 )
 from mapping.data.frame import Intrinsics
-from mapping.data.loaders import FrameFiles, ReadSpec, RGBDDataset, check_depth_scale, select
+from mapping.data.dataset import FrameFiles, ReadSpec, RGBDDataset, check_depth_scale, select
 
 IntrinsicsLike = Intrinsics | Mapping[str, float] | Sequence[float]
 
