@@ -124,6 +124,13 @@ class RGBDDataset(LazyFrames):
         """Raw depth units per metre."""
         return self._spec.depth_scale
 
+    def subset(self, positions: Sequence[int] | range) -> "RGBDDataset":
+        """The same scene restricted to the frames at ``positions`` (e.g. ``range(len(ds))[a:b:s]``)."""
+        positions = list(positions)
+        if not positions:
+            raise DatasetError(f"{self.root}: the frame selection leaves no frame (of {len(self)})")
+        return RGBDDataset([self._files[p] for p in positions], self._spec, self.kind, self.root, self.skipped)
+
     def split(self, n_agents: int, mode: str = "contiguous") -> list[AgentSequence]:
         """Cut the scene into one sequence per agent.
 

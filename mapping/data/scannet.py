@@ -23,6 +23,7 @@ from mapping.data._io import (
     as_intrinsics,
     check_pose,
     image_size,
+    intrinsics_for_images,
     match_indices,
     numbered_files,
     read_matrix_file,
@@ -49,7 +50,7 @@ def scannet_intrinsics(root: Path, depth_size: tuple[int, int], color_path: Path
     ``intrinsic_color.txt`` rescaled from the colour image size (the two cameras share a centre)."""
     w, h = depth_size
     if given is not None:
-        k = as_intrinsics(given)
+        k = intrinsics_for_images(given, depth_size)
         return k if (k.width, k.height) == (w, h) else k.scaled(w, h)
     depth_file = root / "intrinsic" / "intrinsic_depth.txt"
     color_file = root / "intrinsic" / "intrinsic_color.txt"
@@ -93,7 +94,8 @@ def load_scannet(
     Args:
         path: the scene folder (``scene0000_00``).
         depth_scale: raw depth units per metre (ScanNet stores millimetres).
-        intrinsics: override the depth camera (any resolution of it; rescaled to the depth images).
+        intrinsics: override the depth camera (any resolution of it, rescaled to the depth images; or
+            (fx, fy, cx, cy) of the depth images).
         stride: keep every ``stride``-th source frame.
         max_frames: keep at most this many frames (after ``stride`` and skipping invalid poses).
         instances: read ``instance-filt/``: None = if present, True = required, False = never.
