@@ -212,7 +212,7 @@ def read_rgb(path: Path, size: tuple[int, int], resize: bool = False) -> np.ndar
     if resize and im.size != size:
         im = im.resize(size, Image.Resampling.BILINEAR)
     _check_size(im, path, size, "colour")
-    return np.asarray(im, dtype=np.uint8)
+    return np.array(im, dtype=np.uint8)  # writable (torch warns on read-only arrays)
 
 
 def read_depth(path: Path, size: tuple[int, int], scale: float) -> np.ndarray:

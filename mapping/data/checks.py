@@ -26,7 +26,11 @@ PLAUSIBLE_MEDIAN_DEPTH_M = (0.2, 15.0)
 AGREEMENT_TOLERANCE = 0.05
 """Relative depth difference under which a reprojected point agrees with the other frame's depth."""
 MIN_AGREEMENT = 0.3
-"""Share of reprojected points that must agree for a pair of neighbouring frames to look consistent."""
+"""Share of the overlapping reprojected points that must agree for neighbouring frames to look
+consistent (occlusion and sensor noise keep correct poses well above it; wrong poses land points at
+unrelated depths, far below it)."""
+MIN_OVERLAP = 0.1
+"""A pair counts only when this share of the first frame's points lands inside the second frame."""
 
 
 @dataclass(frozen=True)
@@ -73,21 +77,19 @@ def _agreement(src: Frame, dst: Frame, src_pose: np.ndarray, dst_pose: np.ndarra
     u = np.round(k.fx * cam[front, 0] / z[front] + k.cx).astype(np.int64)
     v = np.round(k.fy * cam[front, 1] / z[front] + k.cy).astype(np.int64)
     inside = (u >= 0) & (u < k.width) & (v >= 0) & (v < k.height)
-    if inside.sum() < 0.05 * len(points):
-        return 0.0  # the neighbour does not even look at the same place
     seen = dst.depth[v[inside], u[inside]]
     zz = z[front][inside]
     ok = seen > 0
-    if not ok.any():
-        return None
+    if ok.sum() < MIN_OVERLAP * len(points):
+        return 0.0  # the neighbour does not look at the same place
     agree = np.abs(seen[ok] - zz[ok]) < AGREEMENT_TOLERANCE * zz[ok]
-    return float(agree.sum() / len(points))
+    return float(agree.mean())
 
 
-def pose_agreement(frames: Sequence[Frame], stride: int = 8) -> PoseCheck:
-    """Median agreement of consecutive ``frames`` with the poses as given and inverted."""
+def pose_agreement(pairs: Sequence[tuple[Frame, Frame]], stride: int = 8) -> PoseCheck:
+    """Median agreement of pairs of neighbouring frames with the poses as given and inverted."""
     given, inverted = [], []
-    for a, b in zip(frames[:-1], frames[1:]):
+    for a, b in pairs:
         g = _agreement(a, b, a.pose, b.pose, stride)
         i = _agreement(a, b, np.linalg.inv(a.pose), np.linalg.inv(b.pose), stride)
         if g is not None and i is not None:
@@ -98,14 +100,14 @@ def pose_agreement(frames: Sequence[Frame], stride: int = 8) -> PoseCheck:
     return PoseCheck(float(np.median(given)), float(np.median(inverted)), len(given))
 
 
-def check_poses(frames: Sequence[Frame], where: str) -> PoseCheck:
-    """Warn when consecutive frames disagree under their poses (poses not camera-to-world)."""
-    result = pose_agreement(frames)
+def check_poses(pairs: Sequence[tuple[Frame, Frame]], where: str) -> PoseCheck:
+    """Warn when neighbouring frames disagree under their poses (poses not camera-to-world)."""
+    result = pose_agreement(pairs)
     if result.pairs and result.as_given < MIN_AGREEMENT:
-        hint = (" and agree with the poses inverted, so the file probably holds world-to-camera matrices: "
-                "invert them" if result.inverted >= MIN_AGREEMENT else
+        hint = (" but agree with the poses inverted: the file probably holds world-to-camera matrices; "
+                "invert them" if result.inverted >= max(MIN_AGREEMENT, result.as_given + 0.2) else
                 "; the poses may not be camera-to-world with OpenCV axes (x right, y down, z forward), or "
-                "the frames are too far apart")
+                "the frames are too far apart (--frames with a smaller step)")
         warnings.warn(f"{where}: neighbouring frames disagree under the given poses (median "
                       f"{100 * result.as_given:.0f} % of reprojected depth agrees, over {result.pairs} pairs)"
                       f"{hint}", DatasetWarning, stacklevel=2)

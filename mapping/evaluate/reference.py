@@ -47,6 +47,52 @@ class TSDFConfig:
             raise ValueError(f"TSDFConfig: voxel, truncation and depth_max must be positive, got {self}")
 
 
+class TSDFReference:
+    """A TSDF volume that frames are fused into one at a time (so a run reads each frame once)."""
+
+    def __init__(self, config: TSDFConfig | None = None):
+        import open3d as o3d  # noqa: PLC0415  (heavy; only runs that need a reference pay for it)
+
+        self.config = cfg = config or TSDFConfig()
+        self._o3d = o3d
+        self._grid = o3d.t.geometry.VoxelBlockGrid(
+            attr_names=("tsdf", "weight", "color"),
+            attr_dtypes=(o3d.core.float32, o3d.core.float32, o3d.core.float32),
+            attr_channels=((1), (1), (3)),
+            voxel_size=cfg.voxel_size_m, block_resolution=cfg.block_resolution, block_count=cfg.block_count,
+            device=o3d.core.Device("CPU:0"))
+        self.frames_fused = 0
+
+    def integrate(self, frame: Frame) -> None:
+        """Fuse one frame's depth and colour (frames without valid depth are skipped)."""
+        o3d, cfg = self._o3d, self.config
+        depth = np.ascontiguousarray(np.where(np.isfinite(frame.depth) & (frame.depth > 0), frame.depth, 0.0),
+                                     dtype=np.float32)
+        if not depth.any():
+            return
+        k = o3d.core.Tensor(frame.intrinsics.matrix, o3d.core.float64)
+        extrinsic = o3d.core.Tensor(np.linalg.inv(frame.pose), o3d.core.float64)  # world-to-camera
+        depth_image = o3d.t.geometry.Image(o3d.core.Tensor(depth))
+        colour = o3d.t.geometry.Image(o3d.core.Tensor(np.ascontiguousarray(frame.rgb, np.float32) / 255.0))
+        kw = dict(depth_scale=1.0, depth_max=cfg.depth_max_m, trunc_voxel_multiplier=cfg.truncation_voxels)
+        blocks = self._grid.compute_unique_block_coordinates(depth_image, k, extrinsic, **kw)
+        self._grid.integrate(blocks, depth_image, colour, k, k, extrinsic, **kw)
+        self.frames_fused += 1
+
+    def mesh(self) -> trimesh.Trimesh:
+        """The zero level set (vertex colours from the frames); empty when nothing was fused."""
+        if self.frames_fused == 0:
+            return trimesh.Trimesh()
+        try:
+            mesh = self._grid.extract_triangle_mesh(weight_threshold=self.config.weight_threshold).to_legacy()
+        except RuntimeError:  # open3d raises instead of returning an empty mesh when no voxel passes
+            return trimesh.Trimesh()
+        colours = np.asarray(mesh.vertex_colors)
+        return trimesh.Trimesh(np.asarray(mesh.vertices), np.asarray(mesh.triangles),
+                               vertex_colors=(np.clip(colours, 0, 1) * 255).astype(np.uint8) if len(colours) else None,
+                               process=False)
+
+
 def tsdf_reference_mesh(frames: Iterable[Frame], config: TSDFConfig | None = None) -> trimesh.Trimesh:
     """Fuse the frames' depth (and colour) into a TSDF and extract its zero level set.
 
@@ -57,39 +103,7 @@ def tsdf_reference_mesh(frames: Iterable[Frame], config: TSDFConfig | None = Non
     Returns:
         The reference mesh (vertex colours from the frames); empty when no depth was valid.
     """
-    import open3d as o3d  # noqa: PLC0415  (heavy; only runs that need a reference pay for it)
-
-    cfg = config or TSDFConfig()
-    device = o3d.core.Device("CPU:0")
-    grid = o3d.t.geometry.VoxelBlockGrid(
-        attr_names=("tsdf", "weight", "color"),
-        attr_dtypes=(o3d.core.float32, o3d.core.float32, o3d.core.float32),
-        attr_channels=((1), (1), (3)),
-        voxel_size=cfg.voxel_size_m, block_resolution=cfg.block_resolution, block_count=cfg.block_count,
-        device=device)
-    fused = 0
+    reference = TSDFReference(config)
     for frame in frames:
-        depth = np.ascontiguousarray(np.where(np.isfinite(frame.depth) & (frame.depth > 0), frame.depth, 0.0),
-                                     dtype=np.float32)
-        if not depth.any():
-            continue
-        k = o3d.core.Tensor(frame.intrinsics.matrix, o3d.core.float64)
-        extrinsic = o3d.core.Tensor(np.linalg.inv(frame.pose), o3d.core.float64)  # world-to-camera
-        depth_image = o3d.t.geometry.Image(o3d.core.Tensor(depth))
-        colour = o3d.t.geometry.Image(o3d.core.Tensor(np.ascontiguousarray(frame.rgb, np.float32) / 255.0))
-        blocks = grid.compute_unique_block_coordinates(depth_image, k, extrinsic, depth_scale=1.0,
-                                                       depth_max=cfg.depth_max_m,
-                                                       trunc_voxel_multiplier=cfg.truncation_voxels)
-        grid.integrate(blocks, depth_image, colour, k, k, extrinsic, depth_scale=1.0, depth_max=cfg.depth_max_m,
-                       trunc_voxel_multiplier=cfg.truncation_voxels)
-        fused += 1
-    if fused == 0:
-        return trimesh.Trimesh()
-    try:
-        mesh = grid.extract_triangle_mesh(weight_threshold=cfg.weight_threshold).to_legacy()
-    except RuntimeError:  # open3d raises instead of returning an empty mesh when no voxel passes
-        return trimesh.Trimesh()
-    colours = np.asarray(mesh.vertex_colors)
-    return trimesh.Trimesh(np.asarray(mesh.vertices), np.asarray(mesh.triangles),
-                           vertex_colors=(np.clip(colours, 0, 1) * 255).astype(np.uint8) if len(colours) else None,
-                           process=False)
+        reference.integrate(frame)
+    return reference.mesh()
