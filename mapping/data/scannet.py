@@ -82,7 +82,7 @@ def _valid_poses(
 def load_scannet(
     path: str | Path,
     *,
-    depth_scale: float = 1000.0,
+    depth_scale: float | None = None,
     intrinsics: IntrinsicsLike | None = None,
     stride: int = 1,
     max_frames: int | None = None,
@@ -93,7 +93,7 @@ def load_scannet(
 
     Args:
         path: the scene folder (``scene0000_00``).
-        depth_scale: raw depth units per metre (ScanNet stores millimetres).
+        depth_scale: raw depth units per metre (None: 1000, ScanNet stores millimetres).
         intrinsics: override the depth camera (any resolution of it, rescaled to the depth images; or
             (fx, fy, cx, cy) of the depth images).
         stride: keep every ``stride``-th source frame.
@@ -131,5 +131,5 @@ def load_scannet(
         FrameFiles(i, folders["color/"][i], folders["depth/"][i], poses[i], None if inst is None else inst[i])
         for i in kept
     ]
-    spec = ReadSpec(k, check_depth_scale(depth_scale), resize_rgb=True, resize_instance=True)
+    spec = ReadSpec(k, check_depth_scale(1000.0 if depth_scale is None else depth_scale), resize_rgb=True, resize_instance=True)
     return RGBDDataset(files, spec, "scannet", root, skipped=skipped)
