@@ -87,6 +87,8 @@ def cmd_scenes(args: argparse.Namespace) -> int:
             print(f"  {inst['id']:>3}  {inst['category']:<13} {inst['caption']}")
         cov = info["coverage"]
         print(f"coverage per agent {cov['per_agent_pct']} %, union {cov['union_pct']} %")
+        if args.export:
+            print(f"exported as a {args.layout} data set to {info['export_dir']}")
     world.close()
     return 0
 

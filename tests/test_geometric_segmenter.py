@@ -62,9 +62,10 @@ def test_a_clutter_cluster_is_an_object_and_small_specks_are_dropped():
     depth[50:70, 60:80] = 1.5 - 0.002 * np.arange(20)[None, :]  # a slanted small thing: not a large plane
     depth[5:8, 5:8] = 1.0  # 9 pixels: below the minimum mask size
     seg = GeometricSegmenter().segment(_looking_down(depth))
-    thing, share = _dominant(seg.labels, depth < 1.9)
-    assert thing != 0 and seg.segment(thing).caption == OBJECT_CAPTION
-    assert np.all(seg.labels[5:8, 5:8] == 0)
+    thing, share = _dominant(seg.labels, (depth < 1.9) & (depth > 1.1))
+    floor, _ = _dominant(seg.labels, depth == 2.0)
+    assert thing != 0 and share > 0.8 and seg.segment(thing).caption == OBJECT_CAPTION
+    assert set(np.unique(seg.labels[5:8, 5:8])) <= {0, floor}  # the speck is no mask of its own
 
 
 def test_a_frame_without_depth_has_no_masks_and_captions_are_numbered():
