@@ -69,6 +69,10 @@ def cmd_scenes(args: argparse.Namespace) -> int:
             idx = np.linspace(0, len(poses) - 1, 3).astype(int)
             save_frames(out / f"frames_agent_{a}.png", [world.render(a, int(i)) for i in idx], f"agent_{a}")
         info["render_dir"] = str(out)
+    if args.export:
+        from openmulti_env.world.export import export_world  # noqa: PLC0415
+
+        info["export_dir"] = str(export_world(world, args.export, args.layout))
     if args.json:
         print(json.dumps(info, indent=2))
     else:
@@ -77,15 +81,20 @@ def cmd_scenes(args: argparse.Namespace) -> int:
             print(f"  {inst['id']:>3}  {inst['category']:<13} {inst['caption']}")
         cov = info["coverage"]
         print(f"coverage per agent {cov['per_agent_pct']} %, union {cov['union_pct']} %")
+        if args.export:
+            print(f"exported as a {args.layout} data set to {info['export_dir']}")
     world.close()
     return 0
 
 
 def cmd_run(args: argparse.Namespace) -> int:
-    """The main job: the team maps the scene round by round under the policy; prints a results table."""
+    """The main job: the team maps the scene (or ``--data``) round by round under the policy; prints a
+    results table."""
+    policy = check_policy(args.policy)
+    if args.data is not None:
+        return _run_data(args, policy, Path(args.out))
     from openmulti_env.run import run  # noqa: PLC0415
 
-    policy = check_policy(args.policy)
     out = Path(args.out)
     print(f"[openmulti] scene {args.scene}, {args.agents} agents, preset {args.preset}, seed {args.seed}, "
           f"policy {policy}, alignment {args.alignment}, consistency {args.consistency}"
@@ -113,6 +122,21 @@ def cmd_run(args: argparse.Namespace) -> int:
           f"fleet time {result['fleet_s']:.1f} s")
     print(f"Wrote {out}/metrics.json, {out}/rounds.json, {out}/meshes/, {out}/codebook/, {out}/plots/ in "
           f"{result['wall_s']:.1f} s; try: openmulti query --run {out} \"somewhere to sit\"")
+    return 0
+
+
+def _run_data(args: argparse.Namespace, policy: str, out: Path) -> int:
+    from openmulti_env.data_run import run_data, summary_lines  # noqa: PLC0415
+
+    print(f"[openmulti] data {args.data}, {args.agents} agents, preset {args.preset}, seed {args.seed}, policy {policy}")
+    result = run_data(args.data, args.agents, policy, args.preset, args.seed, out, kind=args.kind,
+                      gt_mesh=args.gt_mesh, frames=args.frames, intrinsics=args.intrinsics,
+                      depth_scale=args.depth_scale, device=args.device, alignment=args.alignment,
+                      clip_checkpoint=args.clip_checkpoint)
+    print()
+    print("\n".join(summary_lines(result)))
+    print(f"Wrote {out}/metrics.json, {out}/meshes/, {out}/codebook/, {out}/plots/ in {result['wall_s']:.1f} s; "
+          f'try: openmulti query --run {out} "the table"')
     return 0
 
 
@@ -151,6 +175,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--preset", choices=RUN_PRESETS, default="fast")
     p.add_argument("--json", action="store_true", help="print JSON")
     p.add_argument("--render", metavar="DIR", help="write a top-down picture and a few frames per agent")
+    p.add_argument("--export", metavar="DIR", help="write the world as an RGB-D data set (frames of all agents)")
+    p.add_argument("--layout", choices=("replica", "scannet", "nice_slam"), default="replica",
+                   help="data set layout of --export")
     p.set_defaults(func=cmd_scenes)
 
     p = sub.add_parser("run", help="a multi-agent run on one scene")
@@ -176,6 +203,14 @@ def build_parser() -> argparse.ArgumentParser:
                    help="local open_clip checkpoint: masks get visual features (optional extra openmulti[clip])")
     p.add_argument("--perfect-masks", action="store_true",
                    help="segment without the front end's error model (no semantic / over- / under-segmentation errors)")
+    g = p.add_argument_group("real RGB-D data (instead of --scene; --policy never only for now)")
+    g.add_argument("--data", metavar="DIR", help="a data set folder: Replica (vMAP or NICE-SLAM layout) or ScanNet")
+    g.add_argument("--kind", choices=("auto", "replica", "nice_slam", "scannet"), default="auto")
+    g.add_argument("--gt-mesh", metavar="PLY", help="ground-truth mesh (else a TSDF reference of the frames)")
+    g.add_argument("--frames", metavar="A:B:S", help="frames A..B-1 every S-th, before the split into agents")
+    g.add_argument("--intrinsics", metavar="FX,FY,CX,CY", help="override the data set's camera")
+    g.add_argument("--depth-scale", type=float, metavar="UNITS", help="raw depth units per metre (Replica 1000 "
+                   "vMAP / 6553.5 NICE-SLAM, ScanNet 1000; default: the layout's or cam_params.json)")
     p.set_defaults(func=cmd_run)
 
     p = sub.add_parser("query", help="open-vocabulary instance retrieval on a finished run")

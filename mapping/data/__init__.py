@@ -3,7 +3,8 @@
 from mapping.data._io import DatasetError, DatasetWarning
 from mapping.data.frame import (AgentSequence, Frame, Intrinsics, backproject_depth, backproject_pixels,
                                 split_contiguous)
-from mapping.data.loaders import LazyFrames, RGBDDataset, detect_layout, load_dataset
+from mapping.data.dataset import LazyFrames, RGBDDataset
+from mapping.data.loaders import detect_layout, load_dataset
 from mapping.data.replica import REPLICA_INTRINSICS, load_nice_slam, load_replica
 from mapping.data.scannet import load_scannet
 

@@ -157,6 +157,30 @@ def as_intrinsics(value: Intrinsics | Mapping[str, float] | Sequence[float]) -> 
     return Intrinsics(int(w), int(h), float(fx), float(fy), float(cx), float(cy))
 
 
+def intrinsics_for_images(value: "Intrinsics | Mapping[str, float] | Sequence[float]",
+                          size: tuple[int, int]) -> Intrinsics:
+    """``as_intrinsics``, also accepting (fx, fy, cx, cy) alone, for images of ``size`` = (W, H)."""
+    if not isinstance(value, (Intrinsics, Mapping)) and len(tuple(value)) == 4:
+        return as_intrinsics((size[0], size[1], *tuple(value)))
+    return as_intrinsics(value)
+
+
+def read_cam_params(root: Path) -> tuple[dict | None, Path | None]:
+    """The ``camera`` block of a Replica ``cam_params.json`` (w, h, fx, fy, cx, cy, scale) in ``root``
+    or its parent (NICE-SLAM keeps one for all scenes), or (None, None) when there is none."""
+    import json  # noqa: PLC0415
+
+    for path in (root / "cam_params.json", root.parent / "cam_params.json"):
+        if path.is_file():
+            try:
+                cam = json.loads(path.read_text())["camera"]
+                return {k: float(cam[k]) for k in ("w", "h", "fx", "fy", "cx", "cy")} | (
+                    {"scale": float(cam["scale"])} if "scale" in cam else {}), path
+            except (OSError, ValueError, KeyError, TypeError) as e:
+                raise DatasetError(f"{path}: cannot read the camera (needs camera.w/h/fx/fy/cx/cy): {e}") from None
+    return None, None
+
+
 def image_size(path: Path) -> tuple[int, int]:
     """(width, height) from the image header, without decoding the pixels."""
     try:
@@ -188,7 +212,7 @@ def read_rgb(path: Path, size: tuple[int, int], resize: bool = False) -> np.ndar
     if resize and im.size != size:
         im = im.resize(size, Image.Resampling.BILINEAR)
     _check_size(im, path, size, "colour")
-    return np.asarray(im, dtype=np.uint8)
+    return np.array(im, dtype=np.uint8)  # writable (torch warns on read-only arrays)
 
 
 def read_depth(path: Path, size: tuple[int, int], scale: float) -> np.ndarray:

@@ -1,164 +1,24 @@
-"""Dataset objects shared by all real-data layouts, and ``load_dataset``, the one entry point.
+"""``load_dataset``, the one entry point for real RGB-D scenes, and layout detection.
 
-A loader validates a scene at load time (folders, frame numbering, counts, trajectory) and keeps only
-paths and poses; images are decoded when a frame is indexed, so a 2000-frame Replica scene costs a
-few hundred kilobytes until it is used. Layout-specific loaders live in ``replica`` and ``scannet``.
+The dataset classes live in ``dataset``; the layout loaders in ``replica`` and ``scannet``. The
+names ``FrameFiles``, ``ReadSpec``, ``LazyFrames``, ``RGBDDataset``, ``select`` and
+``check_depth_scale`` are re-exported here for code that imported them from this module.
 """
 
 from __future__ import annotations
 
-import math
-from collections.abc import Iterator, Sequence
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, TypeVar, overload
+from typing import Any
 
-import numpy as np
+from mapping.data._io import DatasetError
+from mapping.data.dataset import FrameFiles, LazyFrames, ReadSpec, RGBDDataset, check_depth_scale, select
+from mapping.data.replica import load_nice_slam, load_replica
+from mapping.data.scannet import load_scannet
 
-from mapping.data._io import DatasetError, read_depth, read_labels, read_rgb
-from mapping.data.frame import AgentSequence, Frame, Intrinsics, split_contiguous
+__all__ = ["FrameFiles", "LAYOUT_MARKERS", "LazyFrames", "ReadSpec", "RGBDDataset", "check_depth_scale",
+           "detect_layout", "load_dataset", "select"]
 
-T = TypeVar("T")
-
-
-
-@dataclass(frozen=True)
-class FrameFiles:
-    """Where one frame lives on disk, plus its already-parsed pose (poses are small; images are not)."""
-
-    index: int
-    rgb: Path
-    depth: Path
-    pose: np.ndarray
-    instance: Path | None = None
-
-
-@dataclass(frozen=True)
-class ReadSpec:
-    """How files become a Frame: the output camera, the depth unit, and which images may be resized."""
-
-    intrinsics: Intrinsics
-    depth_scale: float
-    resize_rgb: bool = False
-    resize_instance: bool = False
-
-    def read(self, f: FrameFiles) -> Frame:
-        """Decode one frame; any unreadable or ill-sized image raises DatasetError naming it."""
-        size = (self.intrinsics.width, self.intrinsics.height)
-        rgb = read_rgb(f.rgb, size, resize=self.resize_rgb)
-        depth = read_depth(f.depth, size, self.depth_scale)
-        inst = None if f.instance is None else read_labels(f.instance, size, resize=self.resize_instance)
-        return Frame(rgb, depth, f.pose.copy(), self.intrinsics, inst, timestamp=float(f.index), index=f.index)
-
-
-class LazyFrames(Sequence[Frame]):
-    """A sequence of frames read from disk on ``__getitem__``, so long scenes are never all in memory.
-
-    Slicing or :meth:`take` gives another LazyFrames over the same files (no image is read).
-    """
-
-    def __init__(self, files: Sequence[FrameFiles], spec: ReadSpec) -> None:
-        self._files = tuple(files)
-        self._spec = spec
-
-    def __len__(self) -> int:
-        return len(self._files)
-
-    @overload
-    def __getitem__(self, i: int) -> Frame: ...
-    @overload
-    def __getitem__(self, i: slice) -> "LazyFrames": ...
-    def __getitem__(self, i: int | slice) -> "Frame | LazyFrames":
-        if isinstance(i, slice):
-            return LazyFrames(self._files[i], self._spec)
-        return self._spec.read(self._files[i])
-
-    def __iter__(self) -> Iterator[Frame]:
-        return (self._spec.read(f) for f in self._files)
-
-    def take(self, positions: Sequence[int]) -> "LazyFrames":
-        """The frames at ``positions`` (positions in this sequence, not source indices)."""
-        return LazyFrames([self._files[p] for p in positions], self._spec)
-
-    @property
-    def intrinsics(self) -> Intrinsics:
-        """The camera of every frame (images are resampled to it where the layout allows)."""
-        return self._spec.intrinsics
-
-    @property
-    def indices(self) -> list[int]:
-        """Source frame numbers, in order."""
-        return [f.index for f in self._files]
-
-    @property
-    def poses(self) -> np.ndarray:
-        """(n, 4, 4) float64 camera-to-world poses, without reading any image."""
-        return np.stack([f.pose for f in self._files]) if self._files else np.zeros((0, 4, 4))
-
-    @property
-    def files(self) -> tuple[FrameFiles, ...]:
-        """The per-frame file records (paths and poses)."""
-        return self._files
-
-
-class RGBDDataset(LazyFrames):
-    """A loaded scene: a lazy sequence of frames that can be cut into per-agent sequences."""
-
-    def __init__(self, files: Sequence[FrameFiles], spec: ReadSpec, kind: str, root: Path,
-                 skipped: Sequence[int] = ()) -> None:
-        super().__init__(files, spec)
-        if not self._files:
-            raise DatasetError(f"{root}: no frames left to load")
-        self.kind = kind
-        self.root = Path(root)
-        self.skipped = list(skipped)  # source frame numbers dropped at load (e.g. invalid ScanNet poses)
-
-    @property
-    def name(self) -> str:
-        """Short scene name (the folder name)."""
-        return self.root.name
-
-    @property
-    def depth_scale(self) -> float:
-        """Raw depth units per metre."""
-        return self._spec.depth_scale
-
-    def split(self, n_agents: int, mode: str = "contiguous") -> list[AgentSequence]:
-        """Cut the scene into one sequence per agent.
-
-        ``"contiguous"`` gives consecutive chunks (the paper's K data sets per scene);
-        ``"interleaved"`` deals frames round-robin, so every agent sees the whole trajectory sparsely.
-        """
-        n = len(self)
-        if mode == "contiguous":
-            parts = [list(r) for r in split_contiguous(n, n_agents)]
-        elif mode == "interleaved":
-            split_contiguous(n, n_agents)  # same argument checks
-            parts = [list(range(k, n, n_agents)) for k in range(n_agents)]
-        else:
-            raise ValueError(f"split mode must be 'contiguous' or 'interleaved', got {mode!r}")
-        return [AgentSequence(k, self.take(p), name=f"{self.name}/agent_{k}") for k, p in enumerate(parts)]
-
-    def __repr__(self) -> str:
-        k = self.intrinsics
-        return f"RGBDDataset(kind={self.kind!r}, root='{self.root}', frames={len(self)}, size={k.width}x{k.height})"
-
-
-def select(items: Sequence[T], stride: int = 1, max_frames: int | None = None) -> list[T]:
-    """Every ``stride``-th item, then at most ``max_frames`` of them (argument checks included)."""
-    if int(stride) != stride or stride < 1:
-        raise ValueError(f"stride must be a positive integer, got {stride}")
-    if max_frames is not None and max_frames < 1:
-        raise ValueError(f"max_frames must be >= 1 or None, got {max_frames}")
-    out = list(items)[:: int(stride)]
-    return out if max_frames is None else out[:max_frames]
-
-
-def check_depth_scale(scale: float) -> float:
-    """A positive, finite depth scale as float."""
-    if not math.isfinite(scale) or scale <= 0:
-        raise ValueError(f"depth_scale must be positive and finite, got {scale}")
-    return float(scale)
+LOADERS = {"replica": load_replica, "nice_slam": load_nice_slam, "scannet": load_scannet}
 
 
 # --------------------------------------------------------------------------- layout detection
@@ -213,13 +73,8 @@ def load_dataset(path: str | Path, kind: str = "auto", **kw: Any) -> RGBDDataset
         **kw: passed to the layout's loader (``depth_scale``, ``intrinsics``, ``stride``,
             ``max_frames``, ``instances``, and for ScanNet ``invalid_pose``).
     """
-    # Imported here because the layout modules build on the classes above.
-    from mapping.data.replica import load_nice_slam, load_replica
-    from mapping.data.scannet import load_scannet
-
-    loaders = {"replica": load_replica, "nice_slam": load_nice_slam, "scannet": load_scannet}
     if kind == "auto":
         kind = detect_layout(path)
-    if kind not in loaders:
-        raise ValueError(f"kind must be 'auto' or one of {sorted(loaders)}, got {kind!r}")
-    return loaders[kind](path, **kw)
+    if kind not in LOADERS:
+        raise ValueError(f"kind must be 'auto' or one of {sorted(LOADERS)}, got {kind!r}")
+    return LOADERS[kind](path, **kw)

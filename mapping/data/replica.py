@@ -27,13 +27,15 @@ from mapping.data._io import (
     as_intrinsics,
     check_pose,
     image_size,
+    intrinsics_for_images,
     match_indices,
     numbered_files,
+    read_cam_params,
     read_trajectory,
     require_dir,
 )
 from mapping.data.frame import Intrinsics
-from mapping.data.loaders import FrameFiles, ReadSpec, RGBDDataset, check_depth_scale, select
+from mapping.data.dataset import FrameFiles, ReadSpec, RGBDDataset, check_depth_scale, select
 
 #: The camera of the Replica renderings used by vMAP, iMAP and NICE-SLAM.
 REPLICA_INTRINSICS = Intrinsics(width=1200, height=680, fx=600.0, fy=600.0, cx=599.5, cy=339.5)
@@ -70,7 +72,8 @@ def _trajectory_dataset(
     instance: dict[int, Path] | None,
     labels: tuple[str, str, str],
     traj_path: Path,
-    depth_scale: float,
+    depth_scale: float | None,
+    default_scale: float,
     intrinsics: IntrinsicsLike | None,
     stride: int,
     max_frames: int | None,
@@ -81,7 +84,15 @@ def _trajectory_dataset(
     indices = match_indices(root, folders)
     poses = read_trajectory(traj_path)
     _check_trajectory(traj_path, poses, indices, rgb[indices[0]].parent)
-    k = REPLICA_INTRINSICS if intrinsics is None else as_intrinsics(intrinsics)
+    cam, _ = read_cam_params(root)
+    if intrinsics is not None:
+        k = intrinsics_for_images(intrinsics, image_size(rgb[indices[0]]))
+    elif cam is not None:
+        k = as_intrinsics((cam["w"], cam["h"], cam["fx"], cam["fy"], cam["cx"], cam["cy"]))
+    else:
+        k = REPLICA_INTRINSICS
+    if depth_scale is None:
+        depth_scale = cam["scale"] if cam is not None and "scale" in cam else default_scale
     _check_first_size(rgb[indices[0]], k)
     files = [
         FrameFiles(i, rgb[i], depth[i], poses[i], None if instance is None else instance[i])
@@ -93,7 +104,7 @@ def _trajectory_dataset(
 def load_replica(
     path: str | Path,
     *,
-    depth_scale: float = 1000.0,
+    depth_scale: float | None = None,
     intrinsics: IntrinsicsLike | None = None,
     stride: int = 1,
     max_frames: int | None = None,
@@ -103,8 +114,10 @@ def load_replica(
 
     Args:
         path: the sequence folder.
-        depth_scale: raw depth units per metre.
-        intrinsics: camera (Intrinsics, vMAP-style mapping or 6-sequence); Replica's 1200x680 if None.
+        depth_scale: raw depth units per metre; None = ``cam_params.json``'s ``scale`` if there is one,
+            else 1000 (vMAP) / 6553.5 (NICE-SLAM).
+        intrinsics: camera (Intrinsics, vMAP-style mapping, 6-sequence, or (fx, fy, cx, cy) for the
+            images' size); None = ``cam_params.json`` in the folder or its parent, else Replica's 1200x680.
         stride: keep every ``stride``-th frame.
         max_frames: keep at most this many frames (after ``stride``).
         instances: read ``semantic_instance/``: None = if present, True = required, False = never.
@@ -117,13 +130,13 @@ def load_replica(
     inst = numbered_files(inst_dir, "semantic_instance_", (".png",)) if use_inst else None
     labels = ("rgb/", "depth/", "semantic_instance/")
     return _trajectory_dataset(root, "replica", rgb, depth, inst, labels, root / "traj_w_c.txt",
-                               depth_scale, intrinsics, stride, max_frames)
+                               depth_scale, 1000.0, intrinsics, stride, max_frames)
 
 
 def load_nice_slam(
     path: str | Path,
     *,
-    depth_scale: float = 6553.5,
+    depth_scale: float | None = None,
     intrinsics: IntrinsicsLike | None = None,
     stride: int = 1,
     max_frames: int | None = None,
@@ -141,4 +154,4 @@ def load_nice_slam(
     depth = numbered_files(results, "depth", (".png",))
     labels = ("results/frame*", "results/depth*", "")
     return _trajectory_dataset(root, "nice_slam", rgb, depth, None, labels, root / "traj.txt",
-                               depth_scale, intrinsics, stride, max_frames)
+                               depth_scale, 6553.5, intrinsics, stride, max_frames)

@@ -23,13 +23,14 @@ from mapping.data._io import (
     as_intrinsics,
     check_pose,
     image_size,
+    intrinsics_for_images,
     match_indices,
     numbered_files,
     read_matrix_file,
     require_dir,
 )
 from mapping.data.frame import Intrinsics
-from mapping.data.loaders import FrameFiles, ReadSpec, RGBDDataset, check_depth_scale, select
+from mapping.data.dataset import FrameFiles, ReadSpec, RGBDDataset, check_depth_scale, select
 
 IntrinsicsLike = Intrinsics | Mapping[str, float] | Sequence[float]
 
@@ -49,7 +50,7 @@ def scannet_intrinsics(root: Path, depth_size: tuple[int, int], color_path: Path
     ``intrinsic_color.txt`` rescaled from the colour image size (the two cameras share a centre)."""
     w, h = depth_size
     if given is not None:
-        k = as_intrinsics(given)
+        k = intrinsics_for_images(given, depth_size)
         return k if (k.width, k.height) == (w, h) else k.scaled(w, h)
     depth_file = root / "intrinsic" / "intrinsic_depth.txt"
     color_file = root / "intrinsic" / "intrinsic_color.txt"
@@ -81,7 +82,7 @@ def _valid_poses(
 def load_scannet(
     path: str | Path,
     *,
-    depth_scale: float = 1000.0,
+    depth_scale: float | None = None,
     intrinsics: IntrinsicsLike | None = None,
     stride: int = 1,
     max_frames: int | None = None,
@@ -92,8 +93,9 @@ def load_scannet(
 
     Args:
         path: the scene folder (``scene0000_00``).
-        depth_scale: raw depth units per metre (ScanNet stores millimetres).
-        intrinsics: override the depth camera (any resolution of it; rescaled to the depth images).
+        depth_scale: raw depth units per metre (None: 1000, ScanNet stores millimetres).
+        intrinsics: override the depth camera (any resolution of it, rescaled to the depth images; or
+            (fx, fy, cx, cy) of the depth images).
         stride: keep every ``stride``-th source frame.
         max_frames: keep at most this many frames (after ``stride`` and skipping invalid poses).
         instances: read ``instance-filt/``: None = if present, True = required, False = never.
@@ -129,5 +131,5 @@ def load_scannet(
         FrameFiles(i, folders["color/"][i], folders["depth/"][i], poses[i], None if inst is None else inst[i])
         for i in kept
     ]
-    spec = ReadSpec(k, check_depth_scale(depth_scale), resize_rgb=True, resize_instance=True)
+    spec = ReadSpec(k, check_depth_scale(1000.0 if depth_scale is None else depth_scale), resize_rgb=True, resize_instance=True)
     return RGBDDataset(files, spec, "scannet", root, skipped=skipped)

@@ -1,0 +1,168 @@
+"""``openmulti run --data`` end to end on the tiny committed data sets (tests/fixtures), and bad input."""
+
+from __future__ import annotations
+
+import json
+import re
+import shutil
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from mapping.data import DatasetError, DatasetWarning
+from openmulti_env.cli import main
+from openmulti_env.data_run import forget_stale_checkpoints
+from openmulti_env.data_inputs import check_sequence, load_agents, load_gt_mesh, parse_frames, parse_intrinsics
+
+FIXTURES = Path(__file__).parent / "fixtures"
+REPLICA, SCANNET, NICE_SLAM = FIXTURES / "replica_tiny", FIXTURES / "scene0000_00", FIXTURES / "nice_slam_tiny"
+KEYS = {"acc_cm", "comp_cm", "comp_ratio", "f_miou", "f_macc"}
+
+
+def _run(out: Path, data: Path, *extra: str) -> dict:
+    args = ["run", "--data", str(data), "--preset", "tiny", "--policy", "never", "--device", "cpu", "--out", str(out)]
+    assert main(args + list(extra)) == 0
+    return json.loads((out / "metrics.json").read_text())
+
+
+def _query(capsys, out: Path, text: str) -> dict:
+    capsys.readouterr()
+    assert main(["query", "--run", str(out), text, "--top", "3"]) == 0
+    printed = capsys.readouterr().out
+    return json.loads(printed[printed.index("{"):])
+
+
+def test_replica_with_masks_and_mesh_writes_the_run_contract_and_answers_queries(tmp_path, capsys):
+    out = tmp_path / "replica"
+    metrics = _run(out, REPLICA, "--agents", "2", "--gt-mesh", str(REPLICA / "mesh.ply"))
+    text = capsys.readouterr().out
+    assert "given ground-truth mesh" in text and "TSDF" not in text
+    assert set(metrics["agents"]) == {"agent_0", "agent_1"} and KEYS <= set(metrics["mean"])
+    for m in metrics["agents"].values():
+        assert KEYS <= set(m) and 0 < m["comp_ratio"] <= 100 and m["acc_cm"] > 0
+        assert 0 < m["f_miou"] <= 100 and 0 < m["f_macc"] <= 100
+    assert metrics["ground_truth"] == "given" and metrics["masks"] == "dataset"
+    assert metrics["config"]["frames_per_agent"] == {"agent_0": 6, "agent_1": 6}
+    assert metrics["bytes_sent_total"] == 0 and metrics["wall_s"] > 0 and metrics["config"]["policy"] == "never"
+    for name in ("meshes/gt_observable.ply", "meshes/agent_1.ply", "codebook/agent_0.json",
+                 "plots/reconstruction_top_down.png", "plots/rendered_views_agent_1.png", "plots/semantic_per_class.png"):
+        assert (out / name).stat().st_size > 0, name
+    classes = {o["class_name"] for o in json.loads((REPLICA / "info_semantic.json").read_text())["objects"]}
+    book = json.loads((out / "codebook" / "agent_0.json").read_text())["instances"]
+    assert book and {e["caption"] for e in book} <= classes  # captions = the data set's names
+    hits = _query(capsys, out, "the floor")
+    assert hits["results"][0]["category"] == "floor"
+    # checkpoints of the finished maps are kept for the same settings only
+    assert (out / "checkpoints" / "agent_1.pt").exists()
+    settings = json.loads((out / "checkpoints" / "run_settings.json").read_text())
+    forget_stale_checkpoints(out, settings)
+    assert (out / "checkpoints" / "agent_1.pt").exists()
+    forget_stale_checkpoints(out, {**settings, "seed": 1})
+    assert not (out / "checkpoints" / "agent_1.pt").exists()
+
+
+def test_scannet_with_masks_without_mesh_is_scored_against_a_tsdf_reference(tmp_path, capsys):
+    metrics = _run(tmp_path / "scannet", SCANNET, "--agents", "1")
+    text = capsys.readouterr().out
+    assert "TSDF REFERENCE" in text and "not ground truth" in text
+    assert metrics["ground_truth"] == "tsdf_reference" and "not against ground truth" in metrics["notes"]
+    assert metrics["masks"] == "dataset" and metrics["mean"]["f_miou"] is not None
+    assert 0 < metrics["mean"]["comp_ratio"] <= 100
+    assert (tmp_path / "scannet" / "meshes" / "gt_reference.ply").stat().st_size > 0
+
+
+def test_plain_rgbd_without_masks_uses_the_geometric_segmenter(tmp_path, capsys):
+    out = tmp_path / "plain"
+    metrics = _run(out, NICE_SLAM, "--agents", "1", "--gt-mesh", str(REPLICA / "mesh.ply"))
+    text = capsys.readouterr().out
+    assert "semantics are geometric only" in text
+    assert metrics["masks"] == "geometric" and metrics["ground_truth"] == "given"
+    assert metrics["mean"]["f_miou"] is None and metrics["mean"]["comp_ratio"] > 0
+    assert metrics["timings_s"]["segmenter_per_frame"] > 0
+    book = json.loads((out / "codebook" / "agent_0.json").read_text())["instances"]
+    captions = [e["caption"] for e in book]
+    assert captions and all(c.split()[-1].isdigit() and c.rsplit(" ", 1)[0] in ("planar surface", "object")
+                            for c in captions)
+    assert _query(capsys, out, "a planar surface")["results"]
+
+
+def test_no_masks_no_mesh_and_a_frame_selection(tmp_path, capsys):
+    metrics = _run(tmp_path / "bare", NICE_SLAM, "--agents", "1", "--frames", "0:12:3")
+    assert metrics["config"]["frames_per_agent"] == {"agent_0": 4}
+    assert metrics["masks"] == "geometric" and metrics["ground_truth"] == "tsdf_reference"
+
+
+def test_other_policies_are_refused_until_the_team_exists(tmp_path, capsys):
+    assert main(["run", "--data", str(REPLICA), "--policy", "always", "--out", str(tmp_path)]) == 2
+    assert "--policy never" in capsys.readouterr().err
+    assert not (tmp_path / "metrics.json").exists()
+
+
+# --------------------------------------------------------------------------- bad input
+
+
+def _copy(tmp_path: Path, src: Path = REPLICA) -> Path:
+    dst = tmp_path / src.name
+    shutil.copytree(src, dst)
+    return dst
+
+
+def test_corrupt_image_missing_frame_and_bad_pose_name_the_file(tmp_path):
+    data = _copy(tmp_path)
+    (data / "rgb" / "rgb_3.png").write_bytes(b"not a png")
+    agents = load_agents(data, "auto", 2)
+    with pytest.raises(DatasetError, match="rgb_3.png"):
+        [f for seq in agents.values() for f in seq]
+    (data / "depth" / "depth_5.png").unlink()
+    with pytest.raises(DatasetError, match="rgb_5.png.*no matching frame in depth/"):
+        load_agents(data, "auto", 2)
+    data = _copy(tmp_path / "b")
+    lines = (data / "traj_w_c.txt").read_text().splitlines()
+    lines[2] = " ".join(["nan"] * 16)
+    (data / "traj_w_c.txt").write_text("\n".join(lines) + "\n")
+    with pytest.raises(DatasetError, match="traj_w_c.txt:pose 2.*non-finite"):
+        load_agents(data, "auto", 2)
+    with pytest.raises(DatasetError, match="fewer than --agents 20"):
+        load_agents(REPLICA, "auto", 20)
+
+
+def test_wrong_depth_unit_warns_and_names_the_flag():
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        check_sequence(load_agents(REPLICA, "auto", 1, depth_scale=1.0))
+    messages = [str(w.message) for w in caught if issubclass(w.category, DatasetWarning)]
+    assert any(re.search(r"replica_tiny/depth: median depth is .* implausible.*--depth-scale", m) for m in messages)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        check_sequence(load_agents(REPLICA, "auto", 2))  # the fixture itself is fine
+
+
+def test_world_to_camera_poses_warn(tmp_path):
+    data = _copy(tmp_path)
+    poses = np.loadtxt(data / "traj_w_c.txt").reshape(-1, 4, 4)
+    np.savetxt(data / "traj_w_c.txt", np.linalg.inv(poses).reshape(-1, 16))
+    with pytest.warns(DatasetWarning, match=r"traj_w_c.txt.*world-to-camera"):
+        check_sequence(load_agents(data, "auto", 2))
+
+
+def test_option_strings_and_meshes_are_checked(tmp_path):
+    assert parse_frames("2::3", 12) == range(2, 12, 3) and parse_frames(None, 4) == range(4)
+    for bad in ("a:b", "1:2:0", "1:2:3:4"):
+        with pytest.raises(ValueError, match="--frames"):
+            parse_frames(bad, 10)
+    assert parse_intrinsics("40,40,39.5,29.5") == (40.0, 40.0, 39.5, 29.5)
+    with pytest.raises(ValueError, match="--intrinsics"):
+        parse_intrinsics("40,40,39.5")
+    with pytest.raises(DatasetError, match="selection leaves no frame"):
+        load_agents(REPLICA, "auto", 1, frames="50:60")
+    bad = tmp_path / "broken.ply"
+    bad.write_text("ply\nformat nonsense\n")
+    with pytest.raises(DatasetError, match="broken.ply"):
+        load_gt_mesh(bad)
+    with pytest.raises(DatasetError, match="not found"):
+        load_gt_mesh(tmp_path / "missing.ply")
+    # intrinsics override: four numbers for the images' size
+    seq = load_agents(REPLICA, "auto", 1, intrinsics="41,42,39.5,29.5")["agent_0"]
+    assert (seq.intrinsics.width, seq.intrinsics.fx, seq.intrinsics.fy) == (80, 41.0, 42.0)

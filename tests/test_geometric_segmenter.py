@@ -1,0 +1,75 @@
+"""The geometric segmenter (planes + Euclidean clusters) on hand-made depth images."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from mapping.data import Frame, Intrinsics
+from mapping.perception.geometric_segmenter import (OBJECT_CAPTION, PLANE_CAPTION, GeometricSegmenter,
+                                                    instance_caption)
+
+K = Intrinsics.from_fov(160, 120, 90.0)
+
+
+def _looking_down(depth: np.ndarray) -> Frame:
+    """A camera 2 m above the floor looking straight down (OpenCV axes: z down into the floor)."""
+    pose = np.eye(4)
+    pose[:3, :3] = np.diag([1.0, -1.0, -1.0])
+    pose[2, 3] = 2.0
+    rgb = np.full((*depth.shape, 3), 128, np.uint8)
+    return Frame(rgb, depth.astype(np.float32), pose, K, index=3)
+
+
+def _two_boxes() -> tuple[Frame, np.ndarray, np.ndarray, np.ndarray]:
+    """Floor at 2 m, a 40 cm box and a 30 cm box on it, 20 px apart; masks of floor and boxes."""
+    depth = np.full((120, 160), 2.0)
+    box_a = np.zeros(depth.shape, bool)
+    box_a[30:80, 20:70] = True
+    box_b = np.zeros(depth.shape, bool)
+    box_b[40:90, 90:140] = True
+    depth[box_a] = 1.6
+    depth[box_b] = 1.7
+    depth[:, :3] = 0.0  # a strip without depth readings
+    return _looking_down(depth), box_a, box_b, ~(box_a | box_b) & (depth > 0)
+
+
+def _dominant(labels: np.ndarray, region: np.ndarray) -> tuple[int, float]:
+    ids, counts = np.unique(labels[region], return_counts=True)
+    k = int(np.argmax(counts))
+    return int(ids[k]), float(counts[k] / region.sum())
+
+
+def test_two_boxes_on_a_plane_are_separated_from_each_other_and_the_floor():
+    frame, box_a, box_b, floor = _two_boxes()
+    seg = GeometricSegmenter().segment(frame)
+    id_a, share_a = _dominant(seg.labels, box_a)
+    id_b, share_b = _dominant(seg.labels, box_b)
+    id_floor, share_floor = _dominant(seg.labels, floor)
+    assert share_a > 0.8 and share_b > 0.8 and share_floor > 0.9
+    assert len({id_a, id_b, id_floor}) == 3 and 0 not in (id_a, id_b, id_floor)
+    # no segment holds much of two of them
+    for sid in (id_a, id_b, id_floor):
+        spread = [np.mean(seg.labels[r] == sid) for r in (box_a, box_b, floor)]
+        assert sorted(spread)[-2] < 0.05
+    assert seg.segment(id_floor).caption == PLANE_CAPTION
+    assert np.all(seg.labels[frame.depth == 0] == 0)  # no depth, no mask
+    assert {s.segment_id for s in seg.segments} == set(np.unique(seg.labels)) - {0}
+    assert seg.frame_index == 3 and all(s.pixels >= 100 for s in seg.segments)
+
+
+def test_a_clutter_cluster_is_an_object_and_small_specks_are_dropped():
+    depth = np.full((120, 160), 2.0)
+    depth[50:70, 60:80] = 1.5 - 0.002 * np.arange(20)[None, :]  # a slanted small thing: not a large plane
+    depth[5:8, 5:8] = 1.0  # 9 pixels: below the minimum mask size
+    seg = GeometricSegmenter().segment(_looking_down(depth))
+    thing, share = _dominant(seg.labels, (depth < 1.9) & (depth > 1.1))
+    floor, _ = _dominant(seg.labels, depth == 2.0)
+    assert thing != 0 and share > 0.8 and seg.segment(thing).caption == OBJECT_CAPTION
+    assert set(np.unique(seg.labels[5:8, 5:8])) <= {0, floor}  # the speck is no mask of its own
+
+
+def test_a_frame_without_depth_has_no_masks_and_captions_are_numbered():
+    seg = GeometricSegmenter().segment(_looking_down(np.zeros((120, 160))))
+    assert seg.segments == [] and not seg.labels.any()
+    assert instance_caption(PLANE_CAPTION, 3) == "planar surface 3"
+    assert instance_caption(OBJECT_CAPTION, 7) == "object 7"
