@@ -4,9 +4,9 @@ VENV ?= .venv
 PY := $(VENV)/bin/python
 AGENTS ?= 4
 SCENE ?= room0
-PRESET ?= fast
+PRESET ?= demo
 OUT ?= runs/demo
-POLICY ?= never
+POLICY ?= always
 ALIGNMENT ?= paper
 
 .PHONY: setup demo test bench clean

@@ -66,8 +66,8 @@ class MappingConfig:
     frame_limit: float = 2.0
     """An instance moves to a larger frame (refit by distillation) when its box reaches this far out
     of its frame's cube (``InstanceFieldBank.frame_coverage``)."""
-    refit_steps: int = 150
-    """Distillation steps of such a move."""
+    refit_steps: int = 60
+    """Distillation steps of such a move (batched over the instances that move together)."""
 
 
 @dataclass
@@ -204,13 +204,23 @@ class MappingAgent:
 
     def set_frame(self, iid: int, frame: InstanceFrame) -> None:
         """Move an instance to ``frame`` (its network refit by distillation, its optimiser state reset)."""
-        slot = self.slots[iid]
-        bank = self.banks[slot.bank]
-        with flushed_denormals():
-            bank.refit_frames([slot.row], torch.tensor([frame.centre]), torch.tensor([frame.half]),
-                              steps=self.config.refit_steps, generator=self.generator)
-        self.optimisers[slot.bank].reset_rows([slot.row])
-        slot.frame_origin, slot.frame_version = frame.origin, frame.version
+        self.set_frames({iid: frame})
+
+    def set_frames(self, frames: dict[int, InstanceFrame]) -> None:
+        """Move several instances to new frames: one batched distillation per bank."""
+        by_bank: dict[str, list[int]] = {}
+        for iid in frames:
+            by_bank.setdefault(self.slots[iid].bank, []).append(iid)
+        for name, ids in by_bank.items():
+            bank = self.banks[name]
+            rows = [self.slots[i].row for i in ids]
+            with flushed_denormals():
+                bank.refit_frames(rows, torch.tensor([frames[i].centre for i in ids]),
+                                  torch.tensor([frames[i].half for i in ids]), steps=self.config.refit_steps,
+                                  generator=self.generator)
+            self.optimisers[name].reset_rows(rows)
+            for i in ids:
+                self.slots[i].frame_origin, self.slots[i].frame_version = frames[i].origin, frames[i].version
 
     # ---- what peers exchange ---------------------------------------------------------------------
     def live_ids(self) -> list[int]:

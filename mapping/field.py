@@ -311,7 +311,7 @@ class InstanceFieldBank(nn.Module):
         return torch.maximum((lo - c).abs(), (hi - c).abs()).amax(-1) / h
 
     def refit_frames(self, rows: Sequence[int], frame_centre: Tensor, frame_half: Tensor, steps: int = 150,
-                     points: int = 2048, lr: float = 3e-3, generator: torch.Generator | None = None) -> float:
+                     points: int = 1024, lr: float = 3e-3, generator: torch.Generator | None = None) -> float:
         """Move ``rows`` to new frames by distillation: fit each row, in its new frame, to what it
         rendered in its old one (occupancy logits and colour at random points of its box), starting
         from its old parameters. Returns the final mean absolute occupancy difference.

@@ -17,7 +17,7 @@ from mapping.perception.image_encoder import ImageEncoderError
 from mapping.perception.text_encoder import TextEncoderError
 from policies.scripted import parse_policy
 
-RUN_PRESETS = ("full", "fast", "tiny")  # openmulti_env.run_presets checks it is the same
+RUN_PRESETS = ("full", "fast", "demo", "tiny")  # openmulti_env.run_presets checks it is the same
 MAX_AGENTS = 8  # openmulti_env.world.world.MAX_AGENTS (a test checks they agree)
 
 PENDING = {

@@ -126,6 +126,7 @@ def run(scene: str, agents: int, policy: str, preset: str, seed: int, out: Path,
     result.update({
         "bytes_sent_total": int(team.channel.bytes_sent.sum()),
         "bytes_per_round": bytes_per_round,
+        "bytes_per_link_total": team.channel.link_bytes.tolist(),
         "bytes_per_round_per_agent_mean": float(np.mean(bytes_per_round) / max(world.num_agents, 1)) if reports else 0.0,
         "messages": {k: int(sum(r[k] for r in reports)) for k in ("delivered", "dropped", "over_budget")},
         "fleet_s": float(sum(r["fleet_s"] for r in reports)),

@@ -1,5 +1,6 @@
 """Run presets: how big a run is (frames, image size, mapper effort). ``full`` is the reference setting, ``fast`` the
-default for quick studies, ``tiny`` for tests and smoke runs."""
+default for quick studies, ``demo`` the paths of ``fast`` with half the keyframes and coarser meshes (``make demo``
+within 5 minutes), ``tiny`` for tests and smoke runs."""
 
 from __future__ import annotations
 
@@ -11,14 +12,14 @@ from openmulti_env.world.paths import PathConfig
 from openmulti_env.world.sensor import SensorConfig
 from openmulti_env.world.world import WorldConfig
 
-RUN_PRESETS = ("full", "fast", "tiny")
+RUN_PRESETS = ("full", "fast", "demo", "tiny")
 
 
 def world_config(preset: str, num_agents: int) -> WorldConfig:
     """World settings of a run preset (raises ValueError naming the known presets)."""
     if preset == "full":
         return WorldConfig(num_agents=num_agents, path=PathConfig(frames_per_agent=200))
-    if preset == "fast":
+    if preset in ("fast", "demo"):
         return WorldConfig(num_agents=num_agents, path=PathConfig(frames_per_agent=120))
     if preset == "tiny":
         base = WorldConfig(num_agents=num_agents)
@@ -33,6 +34,8 @@ def mapping_config(preset: str) -> MappingConfig:
         return MappingConfig(keyframe_every=2, iterations_per_keyframe=20)
     if preset == "fast":
         return MappingConfig(keyframe_every=5, iterations_per_keyframe=20)
+    if preset == "demo":
+        return MappingConfig(keyframe_every=10, iterations_per_keyframe=20, object_voxel_m=0.02, structure_voxel_m=0.03)
     if preset == "tiny":
         return MappingConfig(keyframe_every=4, iterations_per_keyframe=10, rays_per_object=60, rays_per_structure=120,
                              object_voxel_m=0.02, structure_voxel_m=0.04)
@@ -41,7 +44,7 @@ def mapping_config(preset: str) -> MappingConfig:
 
 def frames_per_round(preset: str) -> int:
     """Frames each agent reads per round: one keyframe per round on ``fast``, five on ``full``."""
-    return {"full": 10, "fast": 5, "tiny": 4}[_known(preset)]
+    return {"full": 10, "fast": 5, "demo": 10, "tiny": 4}[_known(preset)]
 
 
 def team_config(preset: str, **options) -> TeamConfig:

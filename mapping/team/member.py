@@ -99,6 +99,9 @@ class ExchangeConfig:
     """Voxel of the clouds sent for alignment."""
     resend_cloud_growth: float = 2.0
     """Send an instance's cloud again when it has grown this many times since it last went."""
+    forward_adopted: bool = False
+    """Also send instances this agent only holds from peers (never saw itself): with every link up
+    each peer has them from their owner already, so by default they are not forwarded."""
 
 
 @dataclass(frozen=True)
@@ -177,6 +180,8 @@ class TeamMember:
         clouds = self.sent_cloud_points.setdefault(receiver, {})
         payloads = []
         for iid in self.mapper.live_ids():
+            if not ex.forward_adopted and not self.mapper.keyframes.has_pixels(iid):
+                continue
             inst = self.mapper.export_instance(iid)
             last = sent.get(iid)
             if ex.changed_only is not None and last is not None and iid in clouds and (
@@ -251,8 +256,15 @@ class TeamMember:
                                             payload.confidence)
                 counts["matched"] += 1
             matches[d.peer_id] = own_id
+        frames = {}
         for inst in message.instances:
-            self._agree(matches.get(inst.instance_id), inst)
+            own_id = matches.get(inst.instance_id)
+            frame = self._agree(own_id, inst)
+            if frame is not None:
+                frames[own_id] = frame
+        if frames:
+            self.mapper.set_frames(frames)  # one batched refit per bank
+        counts["refit"] = len(frames)
         return counts
 
     def _merge(self, piece: int, target: int) -> None:
@@ -265,11 +277,12 @@ class TeamMember:
                 if own == piece:
                     table[pid] = target
 
-    def _agree(self, own_id: int | None, payload: InstancePayload) -> None:
-        """A matched instance covers the peer's box too, and both sides converge on one frame."""
+    def _agree(self, own_id: int | None, payload: InstancePayload) -> InstanceFrame | None:
+        """A matched instance covers the peer's box too; returns the frame it must move to so that both
+        sides converge on one frame (None: it keeps its own)."""
         slot = self.mapper.slots.get(own_id) if own_id is not None else None
         if slot is None or not slot.alive or slot.bank != payload.bank:
-            return
+            return None
         from mapping.bounds import InstanceBound  # noqa: PLC0415
 
         self.mapper.grow_bound(own_id, InstanceBound(payload.bound_lo.astype(np.float64),
@@ -277,7 +290,7 @@ class TeamMember:
         theirs = _frame(payload)
         mine = self.mapper.frame_of(own_id)
         if theirs.same_as(mine) or not theirs.better_than(mine):
-            return
+            return None
         bank = self.mapper.banks[slot.bank]
         c, h = torch.tensor(theirs.centre, device=bank.device), theirs.half
         lo, hi = bank.bound_min[slot.row], bank.bound_max[slot.row]
@@ -286,7 +299,7 @@ class TeamMember:
             centre, half = bank.default_frame(lo[None], hi[None])
             c = centre[0].tolist()
             theirs = InstanceFrame((c[0], c[1], c[2]), float(half[0]), theirs.origin, theirs.version + 1)
-        self.mapper.set_frame(own_id, theirs)
+        return theirs
 
     # ---- 6: consistency iterations ---------------------------------------------------------------
     def consistency_round(self, ray_messages: Sequence[RayMessage]) -> dict:

@@ -184,7 +184,7 @@ class Team:
         arrival_s = [0.0] * n
         for j in range(n):
             t0 = time.perf_counter()
-            counts = {"adopted": 0, "matched": 0, "merged": 0}
+            counts = {"adopted": 0, "matched": 0, "merged": 0, "refit": 0}
             for message in params_in[j]:
                 for k, v in self.members[j].receive_parameters(message).items():
                     counts[k] += v

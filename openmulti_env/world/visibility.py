@@ -199,18 +199,38 @@ def compute_observable_surface(
     return ObservableSurface(mesh, face_ids, vis.any(axis=0), np.asarray(viewpoints))
 
 
-def cull_to_viewpoints(mesh: trimesh.Trimesh, viewpoints: np.ndarray, max_range_m: float = 8.0) -> trimesh.Trimesh:
+def cull_to_viewpoints(mesh: trimesh.Trimesh, viewpoints: np.ndarray, max_range_m: float = 8.0,
+                       group_m: float | None = 0.02) -> trimesh.Trimesh:
     """Keep the faces of ``mesh`` that the ``viewpoints`` can see, occlusion by ``mesh`` itself included.
 
     The reconstruction gets the same treatment as the ground truth (``compute_observable_surface``):
     surfaces that no camera in free space could ever see (the closed back of a wall's field box,
     occupancy hallucinated inside furniture) are not scored, as published evaluations cull meshes to
     observed space.
+
+    Speed: faces are grouped by ``group_m`` voxel of their centre and by the axis and sign of their
+    normal's largest component (so the two sides of a thin wall never share a group); one ray per
+    group (its mean centre and normal) decides for all its faces. A marching-cubes mesh at 1 cm has
+    ~10 faces per 2 cm group: a 3.4 M-face team map took 85 s face by face, about a tenth of it grouped.
+    ``group_m=None`` tests every face.
     """
     if len(mesh.faces) == 0:
         return mesh
     caster = MeshRaycaster(mesh)
     order = np.random.default_rng(0).permutation(len(viewpoints))
-    vis = visibility_matrix(caster, np.asarray(viewpoints)[order], np.asarray(mesh.triangles_center),
-                            np.asarray(mesh.face_normals), max_range_m, stop_when_seen=True)
-    return mesh.submesh([np.flatnonzero(vis.any(axis=0))], append=True, repair=False)
+    centres, normals = np.asarray(mesh.triangles_center), np.asarray(mesh.face_normals)
+    if group_m:
+        axis = np.abs(normals).argmax(axis=1)
+        sign = np.take_along_axis(normals, axis[:, None], 1)[:, 0] > 0
+        keys = np.concatenate([np.floor(centres / group_m).astype(np.int64), (axis * 2 + sign)[:, None]], axis=1)
+        _, group, counts = np.unique(keys, axis=0, return_inverse=True, return_counts=True)
+        group = group.reshape(-1)
+        mean_centre = np.stack([np.bincount(group, centres[:, k]) for k in range(3)], 1) / counts[:, None]
+        mean_normal = np.stack([np.bincount(group, normals[:, k]) for k in range(3)], 1)
+        mean_normal /= np.maximum(np.linalg.norm(mean_normal, axis=1, keepdims=True), 1e-12)
+        vis = visibility_matrix(caster, np.asarray(viewpoints)[order], mean_centre, mean_normal, max_range_m,
+                                stop_when_seen=True).any(axis=0)[group]
+    else:
+        vis = visibility_matrix(caster, np.asarray(viewpoints)[order], centres, normals, max_range_m,
+                                stop_when_seen=True).any(axis=0)
+    return mesh.submesh([np.flatnonzero(vis)], append=True, repair=False)
