@@ -72,7 +72,7 @@ def run(scene: str, agents: int, policy: str, preset: str, seed: int, out: Path,
         alignment: str = "paper", segmentation_errors: bool = True, clip_checkpoint: str | None = None,
         comm_budget_mb: float | None = None, consistency: str = "consensus", cross_rendering: bool = True,
         float16: bool = False, changed_only: float | None = None, threads: int | None = None,
-        checkpoint_every: int = 5, progress: bool = True) -> dict:
+        checkpoint_every: int = 5, progress: bool = True, max_rounds: int | None = None) -> dict:
     """The whole run; returns the metrics dictionary written to ``out/metrics.json``.
 
     Args:
@@ -88,6 +88,7 @@ def run(scene: str, agents: int, policy: str, preset: str, seed: int, out: Path,
         float16, changed_only: what parameter messages carry (``ExchangeConfig``).
         threads: torch threads (default: all cores).
         checkpoint_every: save the team every this many rounds (an interrupted run resumes from it).
+        max_rounds: stop after this many rounds (None: when the paths end), e.g. for smoke tests.
     """
     spec = parse_policy(policy)
     if alignment not in RUN_ALIGNMENT_MODES:
@@ -120,7 +121,7 @@ def run(scene: str, agents: int, policy: str, preset: str, seed: int, out: Path,
                 config, world_vocabulary(world, encoder), seed=seed,
                 channel=ChannelConfig(spec.success_probability, budget), device=device)
     reports = _run_rounds(team, ScriptedPolicy(spec, world.num_agents), out / "checkpoints" / "team.pt",
-                          checkpoint_every, progress)
+                          checkpoint_every, progress, max_rounds)
     result = _evaluate(world, team, seed, out, encoder, image_encoder)
     bytes_per_round = [int(sum(r["bytes_sent"])) for r in reports]
     result.update({
@@ -146,7 +147,8 @@ def run(scene: str, agents: int, policy: str, preset: str, seed: int, out: Path,
     return result
 
 
-def _run_rounds(team: Team, policy: ScriptedPolicy, checkpoint: Path, every: int, progress: bool) -> list[dict]:
+def _run_rounds(team: Team, policy: ScriptedPolicy, checkpoint: Path, every: int, progress: bool,
+                max_rounds: int | None = None) -> list[dict]:
     """Rounds until the paths end, resuming from ``checkpoint`` when it exists; per-round reports."""
     reports: list[dict] = []
     if checkpoint.is_file():
@@ -156,9 +158,9 @@ def _run_rounds(team: Team, policy: ScriptedPolicy, checkpoint: Path, every: int
         except CheckpointError as exc:
             print(f"[openmulti] ignoring unusable checkpoint ({exc}); starting again")
     n = team.num_agents
-    with tqdm(total=team.rounds_total(), initial=team.round_index, desc="rounds", unit="round",
-              disable=not progress) as bar:
-        while not team.done:
+    total = team.rounds_total() if max_rounds is None else min(max_rounds, team.rounds_total())
+    with tqdm(total=total, initial=team.round_index, desc="rounds", unit="round", disable=not progress) as bar:
+        while not team.done and team.round_index < total:
             infos = {f"agent_{a}": {"budget_left_mb": team.channel.budget_left(a) / 1e6} for a in range(n)}
             plan = actions_to_plan(policy(infos, team.round_index), [f"agent_{a}" for a in range(n)])
             report = team.round(plan).as_dict()
@@ -167,7 +169,7 @@ def _run_rounds(team: Team, policy: ScriptedPolicy, checkpoint: Path, every: int
             bar.set_postfix(MB=f"{sum(report['bytes_sent']) / 1e6:.1f}", fleet_s=f"{report['fleet_s']:.1f}",
                             instances=sum(len(m.mapper.live_ids()) for m in team.members))
             bar.update(1)
-            if every and (team.round_index % every == 0 or team.done):
+            if every and (team.round_index % every == 0 or team.round_index == total):
                 team.save(checkpoint, extra={"reports": reports})
     return reports
 

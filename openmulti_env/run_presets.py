@@ -38,7 +38,7 @@ def mapping_config(preset: str) -> MappingConfig:
         return MappingConfig(keyframe_every=10, iterations_per_keyframe=20, object_voxel_m=0.02, structure_voxel_m=0.03)
     if preset == "tiny":
         return MappingConfig(keyframe_every=4, iterations_per_keyframe=10, rays_per_object=60, rays_per_structure=120,
-                             object_voxel_m=0.02, structure_voxel_m=0.04)
+                             object_voxel_m=0.02, structure_voxel_m=0.04, refit_steps=20)
     raise ValueError(f"unknown preset {preset!r}; choose one of {RUN_PRESETS}")
 
 
@@ -48,8 +48,12 @@ def frames_per_round(preset: str) -> int:
 
 
 def team_config(preset: str, **options) -> TeamConfig:
-    """The team settings of a run preset; ``options`` replace TeamConfig fields (e.g. ``consistency``)."""
-    return TeamConfig(mapping=mapping_config(preset), frames_per_round=frames_per_round(preset), **options)
+    """The team settings of a run preset; ``options`` replace TeamConfig fields (e.g. ``consistency``;
+    on ``tiny`` its iterations and rays are cut to the preset's size)."""
+    config = TeamConfig(mapping=mapping_config(preset), frames_per_round=frames_per_round(preset), **options)
+    if preset == "tiny":
+        config = replace(config, consistency=replace(config.consistency, iterations=2, rays_per_pose=64))
+    return config
 
 
 def _known(preset: str) -> str:
