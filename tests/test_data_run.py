@@ -45,7 +45,8 @@ def test_replica_with_masks_and_mesh_writes_the_run_contract_and_answers_queries
         assert 0 < m["f_miou"] <= 100 and 0 < m["f_macc"] <= 100
     assert metrics["ground_truth"] == "given" and metrics["masks"] == "dataset"
     assert metrics["config"]["frames_per_agent"] == {"agent_0": 6, "agent_1": 6}
-    assert metrics["bytes_sent_total"] == 0 and metrics["wall_s"] > 0 and metrics["config"]["policy"] == "never"
+    # the default alignment (paper) exchanges the instances' clouds once; their bytes are counted
+    assert metrics["bytes_sent_total"] > 0 and metrics["wall_s"] > 0 and metrics["config"]["policy"] == "never"
     for name in ("meshes/gt_observable.ply", "meshes/agent_1.ply", "codebook/agent_0.json",
                  "plots/reconstruction_top_down.png", "plots/rendered_views_agent_1.png", "plots/semantic_per_class.png"):
         assert (out / name).stat().st_size > 0, name

@@ -24,7 +24,7 @@ def test_bound_is_padded_robust_and_at_least_10cm():
 
 
 def test_checkpoint_round_trip_and_errors(tmp_path):
-    payload = {"w": torch.randn(3, 4), "step": 7, "nested": {"bounds": [np.ones(3)]}}
+    payload = {"w": torch.randn(3, 4), "step": 7, "nested": {"bounds": [np.ones(3).tolist()]}}
     path = save_checkpoint(tmp_path / "ckpt.pt", payload)
     back = load_checkpoint(path)
     assert torch.equal(back["w"], payload["w"]) and back["step"] == 7
@@ -34,6 +34,9 @@ def test_checkpoint_round_trip_and_errors(tmp_path):
     (tmp_path / "bad.pt").write_bytes(b"garbage")
     with pytest.raises(CheckpointError, match="corrupt"):
         load_checkpoint(tmp_path / "bad.pt")
+    save_checkpoint(tmp_path / "numpy.pt", {"bounds": np.ones(3)})  # not tensors: refused on load
+    with pytest.raises(CheckpointError, match="refused"):
+        load_checkpoint(tmp_path / "numpy.pt")
     torch.save({"something": 1}, tmp_path / "other.pt")
     with pytest.raises(CheckpointError, match="not an OpenMulti checkpoint"):
         load_checkpoint(tmp_path / "other.pt")

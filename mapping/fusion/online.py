@@ -201,8 +201,9 @@ class OnlineFusion:
 
         return {"next_id": self.next_id, "frames_seen": self.frames_seen,
                 "instances": {int(i): {"points": torch.as_tensor(v.points), "caption": v.caption,
-                                       "feature": torch.as_tensor(v.caption_feature), "confidence": v.confidence,
-                                       "frames": v.frames, "adopted": v.adopted, "best": v.best_round_confidence}
+                                       "feature": torch.as_tensor(v.caption_feature), "confidence": float(v.confidence),
+                                       "frames": int(v.frames), "adopted": bool(v.adopted),
+                                       "best": float(v.best_round_confidence)}
                               for i, v in self.instances.items()}}
 
     def restore(self, state: dict) -> None:
