@@ -29,7 +29,7 @@ from mapping.perception import CodeBook, shared_text_encoder
 from mapping.perception.image_encoder import VisualFeatureNotice, load_image_encoder
 from openmulti_env.data_inputs import DataInputs, prepare_inputs
 from openmulti_env.results import write_json_atomic
-from openmulti_env.run_presets import mapping_config, world_config
+from openmulti_env.run_presets import world_config
 from openmulti_env.world.scene import STRUCTURE_CATEGORIES
 from openmulti_env.world.visibility import cull_to_viewpoints
 

@@ -8,11 +8,9 @@ import numpy as np
 import pytest
 import torch
 
-from mapping.agent import MappingConfig
 from mapping.field import OBJECT_FIELD, InstanceFieldBank
 from mapping.optim import AdamConfig, StackedAdam
-from mapping.render import RayBundle, camera_rays
-from mapping.data.frame import Intrinsics
+from mapping.render import RayBundle
 from mapping.team import (Channel, ChannelConfig, ConsistencyConfig, InstancePayload, MessageError, ParameterMessage,
                           PlanError, RayMessage, RoundPlan, Team, TeamConfig, from_bytes, to_bytes)
 from mapping.team.arrival import InstanceView, align_arrivals
