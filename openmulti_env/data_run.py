@@ -28,7 +28,7 @@ from mapping.evaluate.semantic import SemanticMetrics, semantic_metrics, zero_sh
 from mapping.perception import CodeBook, shared_text_encoder
 from mapping.perception.image_encoder import VisualFeatureNotice, load_image_encoder
 from openmulti_env.data_inputs import DataInputs, prepare_inputs
-from openmulti_env.results import write_json_atomic
+from openmulti_env.results import finite_or_none, mean_or_none, write_json_atomic
 from openmulti_env.run_presets import world_config
 from openmulti_env.world.scene import STRUCTURE_CATEGORIES
 from openmulti_env.world.visibility import cull_to_viewpoints
@@ -152,11 +152,11 @@ def evaluate_agents(inputs: DataInputs, aligned: AlignmentResult, labels: dict[i
         culled = cull_to_viewpoints(mesh, inputs.viewpoints) if has_mesh else None
         metrics = evaluate_mesh(culled if culled is not None and len(culled.faces) else None, gt, seed=seed)
         raw = evaluate_mesh(mesh if has_mesh else None, gt, seed=seed)
-        per_agent[name] = {"acc_cm": _finite(metrics.acc_cm), "comp_cm": _finite(metrics.comp_cm),
+        per_agent[name] = {"acc_cm": finite_or_none(metrics.acc_cm), "comp_cm": finite_or_none(metrics.comp_cm),
                            "comp_ratio": float(metrics.comp_ratio),
                            "f_miou": None if semantic is None else semantic.f_miou,
                            "f_macc": None if semantic is None else semantic.f_macc,
-                           "acc_cm_unculled": _finite(raw.acc_cm), "instances": len(mapper.slots)}
+                           "acc_cm_unculled": finite_or_none(raw.acc_cm), "instances": len(mapper.slots)}
         meshes.append(mesh)
         _save_rendered_views(out / "plots" / f"rendered_views_{name}.png", inputs, name, mapper)
     team = _semantics(inputs, np.concatenate(team_points) if team_points else np.zeros((0, 3)),
@@ -173,7 +173,7 @@ def evaluate_agents(inputs: DataInputs, aligned: AlignmentResult, labels: dict[i
     if team is not None:
         save_semantic_classes(out / "plots" / "semantic_per_class.png", team, f"{inputs.name}: team map")
     return {"agents": per_agent,
-            "mean": {k: _mean([m[k] for m in per_agent.values()]) for k in METRIC_KEYS},
+            "mean": {k: mean_or_none([m[k] for m in per_agent.values()]) for k in METRIC_KEYS},
             "team": {"f_miou": None if team is None else team.f_miou, "f_macc": None if team is None else team.f_macc,
                      "global_instances": len(aligned.codebook),
                      "per_class": [] if team is None else team.as_dict()["per_class"]}}
@@ -235,12 +235,3 @@ def _save_rendered_views(path: Path, inputs: DataInputs, name: str, mapper: Mapp
         rendered = mapper.render_view(frame.pose, frame.intrinsics, stride=stride)
         views.append((frame, rendered.colour.cpu().numpy(), rendered.depth.cpu().numpy()))
     save_view_comparison(path, views, stride, f"{inputs.name} {name}: sensor vs map")
-
-
-def _finite(x: float) -> float | None:
-    return float(x) if np.isfinite(x) else None
-
-
-def _mean(values: list) -> float | None:
-    vals = [v for v in values if v is not None]
-    return float(np.mean(vals)) if vals else None

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 import os
 from pathlib import Path
 
@@ -13,3 +14,14 @@ def write_json_atomic(path: Path, data: dict) -> None:
     tmp = path.with_name(path.name + ".tmp")
     tmp.write_text(json.dumps(data, indent=2, allow_nan=False))
     os.replace(tmp, path)
+
+
+def finite_or_none(x: float) -> float | None:
+    """A metric as a JSON number, or None when it is NaN or infinite (e.g. no reconstruction)."""
+    return float(x) if math.isfinite(x) else None
+
+
+def mean_or_none(values: list) -> float | None:
+    """Mean of the values that are not None (None when there are none): the mean over agents."""
+    vals = [float(v) for v in values if v is not None]
+    return sum(vals) / len(vals) if vals else None

@@ -34,7 +34,7 @@ from mapping.perception.errors import SegmentationErrorConfig
 from mapping.perception.image_encoder import VisualFeatureNotice, load_image_encoder
 from openmulti_env.actions import actions_to_plan
 from openmulti_env.run_presets import mapping_config, team_config, world_config
-from openmulti_env.results import write_json_atomic
+from openmulti_env.results import finite_or_none, mean_or_none, write_json_atomic
 from openmulti_env.sim_team import world_streams, world_vocabulary
 from openmulti_env.team_perception import category_vocabulary, semantic_ground_truth
 from policies.scripted import ScriptedPolicy, parse_policy
@@ -201,9 +201,9 @@ def _evaluate(world: World, team: Team, seed: int, out: Path, encoder, image_enc
         metrics = evaluate_mesh(culled if culled is not None and len(culled.faces) else None, gt, seed=seed)
         raw = evaluate_mesh(mesh if has_mesh else None, gt, seed=seed)
         adopted = sum(1 for i in mapper.live_ids() if not mapper.keyframes.has_pixels(i))
-        per_agent[name] = {"acc_cm": _finite(metrics.acc_cm), "comp_cm": _finite(metrics.comp_cm),
+        per_agent[name] = {"acc_cm": finite_or_none(metrics.acc_cm), "comp_cm": finite_or_none(metrics.comp_cm),
                            "comp_ratio": float(metrics.comp_ratio), "f_miou": semantic.f_miou,
-                           "f_macc": semantic.f_macc, "acc_cm_unculled": _finite(raw.acc_cm),
+                           "f_macc": semantic.f_macc, "acc_cm_unculled": finite_or_none(raw.acc_cm),
                            "instances": len(mapper.live_ids()), "instances_without_own_pixels": adopted}
         meshes.append(mesh)
         _save_rendered_views(out / "plots" / f"rendered_views_{name}.png", world, member.index, mapper)
@@ -215,7 +215,7 @@ def _evaluate(world: World, team: Team, seed: int, out: Path, encoder, image_enc
 
     save_reconstruction_views(out / "plots" / "reconstruction_top_down.png", gt, meshes)
     save_semantic_classes(out / "plots" / "semantic_per_class.png", union, f"{world.scene.name}: all agents' maps")
-    return {"agents": per_agent, "mean": {k: _mean([m[k] for m in per_agent.values()]) for k in METRIC_KEYS},
+    return {"agents": per_agent, "mean": {k: mean_or_none([m[k] for m in per_agent.values()]) for k in METRIC_KEYS},
             "team": {"f_miou": union.f_miou, "f_macc": union.f_macc, "per_class": union.as_dict()["per_class"]},
             "notes": "Per-agent metrics: each agent's own map against the whole observable ground truth; mean = "
                      "their average (as the paper). Meshes are culled to what the free-space viewpoints can see; "
@@ -266,12 +266,3 @@ def _save_rendered_views(path: Path, world: World, agent: int, mapper: MappingAg
         rendered = mapper.render_view(poses[i], world.intrinsics, stride=stride)
         views.append((frame, rendered.colour.cpu().numpy(), rendered.depth.cpu().numpy()))
     save_view_comparison(path, views, stride, f"{world.scene.name} agent_{agent}: sensor vs map")
-
-
-def _finite(x: float) -> float | None:
-    return float(x) if np.isfinite(x) else None
-
-
-def _mean(values: list) -> float | None:
-    vals = [v for v in values if v is not None]
-    return float(np.mean(vals)) if vals else None
