@@ -12,7 +12,6 @@ and ``plots/``, and a checkpoint per finished agent (a second run with the same 
 
 from __future__ import annotations
 
-import json
 import time
 import warnings
 from dataclasses import replace
@@ -28,7 +27,7 @@ from mapping.evaluate.semantic import SemanticMetrics, semantic_metrics, zero_sh
 from mapping.perception import CodeBook, shared_text_encoder
 from mapping.perception.image_encoder import VisualFeatureNotice, load_image_encoder
 from openmulti_env.data_inputs import DataInputs, prepare_inputs
-from openmulti_env.results import finite_or_none, mean_or_none, write_json_atomic
+from openmulti_env.results import finite_or_none, forget_stale_checkpoints, mean_or_none, write_json_atomic
 from openmulti_env.run_presets import world_config
 from openmulti_env.world.scene import STRUCTURE_CATEGORIES
 from openmulti_env.world.visibility import cull_to_viewpoints
@@ -178,21 +177,6 @@ def evaluate_agents(inputs: DataInputs, aligned: AlignmentResult, labels: dict[i
                      "global_instances": len(aligned.codebook),
                      "per_class": [] if team is None else team.as_dict()["per_class"]}}
 
-
-def forget_stale_checkpoints(out: Path, settings: dict) -> None:
-    """Keep the agents' checkpoints only when they were made with these settings; else delete them."""
-    path = out / "checkpoints" / "run_settings.json"
-    try:
-        same = json.loads(path.read_text()) == settings
-    except (OSError, ValueError):
-        same = False
-    stale = [] if same else sorted((out / "checkpoints").glob("agent_*.pt"))
-    for ckpt in stale:
-        ckpt.unlink()
-    if stale:
-        print(f"[openmulti] {out}: settings differ from the run that wrote its checkpoints; "
-              f"deleted {len(stale)} checkpoint(s) and mapping again")
-    write_json_atomic(path, settings)
 
 
 def summary_lines(result: dict) -> list[str]:

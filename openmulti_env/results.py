@@ -25,3 +25,20 @@ def mean_or_none(values: list) -> float | None:
     """Mean of the values that are not None (None when there are none): the mean over agents."""
     vals = [float(v) for v in values if v is not None]
     return sum(vals) / len(vals) if vals else None
+
+
+def forget_stale_checkpoints(out: Path, settings: dict) -> None:
+    """Keep ``out/checkpoints/*.pt`` only if they were made with these ``settings`` (ids, masks and maps
+    depend on all of them); otherwise delete them, so a resumed run never mixes two runs."""
+    path = out / "checkpoints" / "run_settings.json"
+    try:
+        same = json.loads(path.read_text()) == settings
+    except (OSError, ValueError):  # no record (or an unreadable one): the checkpoints cannot be trusted
+        same = False
+    stale = [] if same else sorted((out / "checkpoints").glob("*.pt"))
+    for ckpt in stale:
+        ckpt.unlink()
+    if stale:
+        print(f"[openmulti] {out}: settings differ from the run that wrote its checkpoints; "
+              f"deleted {len(stale)} checkpoint(s) and mapping again")
+    write_json_atomic(path, settings)

@@ -10,7 +10,6 @@ agent mapping a list of frames alone) serves the dataset path.
 
 from __future__ import annotations
 
-import json
 import time
 import warnings
 from dataclasses import asdict, replace
@@ -34,7 +33,7 @@ from mapping.perception.errors import SegmentationErrorConfig
 from mapping.perception.image_encoder import VisualFeatureNotice, load_image_encoder
 from openmulti_env.actions import actions_to_plan
 from openmulti_env.run_presets import mapping_config, team_config, world_config
-from openmulti_env.results import finite_or_none, mean_or_none, write_json_atomic
+from openmulti_env.results import finite_or_none, forget_stale_checkpoints, mean_or_none, write_json_atomic
 from openmulti_env.sim_team import world_streams, world_vocabulary
 from openmulti_env.team_perception import category_vocabulary, semantic_ground_truth
 from policies.scripted import ScriptedPolicy, parse_policy
@@ -109,7 +108,7 @@ def run(scene: str, agents: int, policy: str, preset: str, seed: int, out: Path,
                 "alignment": alignment, "segmentation_errors": segmentation_errors, "clip_checkpoint": clip_checkpoint,
                 "comm_budget_mb": comm_budget_mb, "consistency": consistency, "cross_rendering": cross_rendering,
                 "float16": float16, "changed_only": changed_only}
-    _forget_other_runs(out, settings)
+    forget_stale_checkpoints(out, settings)
     print(f"[openmulti] world {world.scene.name}: {len(world.scene.instances)} instances, "
           f"{world.num_agents} agent(s), {sum(len(p) for p in world.agent_poses)} frames")
     encoder = shared_text_encoder()
@@ -232,22 +231,6 @@ def _plain(value):
         return [_plain(v) for v in value]
     return value
 
-
-def _forget_other_runs(out: Path, settings: dict) -> None:
-    """Keep the agents' checkpoints only if they were made with these settings (ids, masks and maps
-    depend on all of them); otherwise delete them, so a resumed run never mixes two runs."""
-    path = out / "checkpoints" / "run_settings.json"
-    try:
-        same = json.loads(path.read_text()) == settings
-    except (OSError, ValueError):  # no record (or an unreadable one): the checkpoints cannot be trusted
-        same = False
-    stale = [] if same else sorted((out / "checkpoints").glob("*.pt"))
-    for ckpt in stale:
-        ckpt.unlink()
-    if stale:
-        print(f"[openmulti] {out}: settings differ from the run that wrote its checkpoints; "
-              f"deleted {len(stale)} checkpoint(s) and mapping again")
-    write_json_atomic(path, settings)
 
 
 def _labelled(book: CodeBook, labels: dict[int, str]) -> CodeBook:
