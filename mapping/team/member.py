@@ -147,6 +147,7 @@ class TeamMember:
         self.sent_vectors: dict[int, dict[int, np.ndarray]] = {}
         self.sent_cloud_points: dict[int, dict[int, int]] = {}
         self.duals: dict[str, torch.Tensor] = {}
+        self.peer_positions: dict[int, tuple[int, np.ndarray]] = {}  # peer -> (round, (3,) position) from its rays
         self._shadow: dict[int, tuple[int, list]] = {}
 
     @property
@@ -300,6 +301,11 @@ class TeamMember:
             c = centre[0].tolist()
             theirs = InstanceFrame((c[0], c[1], c[2]), float(half[0]), theirs.origin, theirs.version + 1)
         return theirs
+
+    def note_rays(self, message: RayMessage) -> None:
+        """A ray message arrived: its last pose is where its sender was (all a member knows of its peers'
+        positions)."""
+        self.peer_positions[message.sender] = (message.round, np.asarray(message.poses[-1][:3, 3], np.float64))
 
     # ---- 6: consistency iterations ---------------------------------------------------------------
     def consistency_round(self, ray_messages: Sequence[RayMessage]) -> dict:

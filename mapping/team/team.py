@@ -180,6 +180,8 @@ class Team:
                                        "bytes": d.bytes})
                     if d.status == DELIVERED:
                         (params_in if d.kind == "params" else rays_in)[j].append(d.message)
+                        if d.kind != "params":
+                            self.members[j].note_rays(d.message)
         alignment = {}
         arrival_s = [0.0] * n
         for j in range(n):
