@@ -16,6 +16,7 @@ from mapping.team import ChannelConfig, ConsistencyConfig, ExchangeConfig, TeamC
 from mapping.team.consistency import CONSISTENCY_ALGORITHMS
 from openmulti_env.world.paths import PathConfig
 from openmulti_env.world.sensor import SensorConfig
+from mapping.runtime import available_cores
 from openmulti_env.world.world import MAX_AGENTS, WorldConfig
 
 ENV_PRESETS = ("tiny", "fast", "full")
@@ -44,15 +45,17 @@ class EnvConfig:
     """Frames each agent reads per env step."""
     keyframe_every: int = 5
     """Every this many frames is a keyframe (trained on)."""
-    iterations_per_keyframe: int = 5
+    iterations_per_keyframe: int = 3
     """Local iterations of the data loss per keyframe."""
-    rays_per_object: int = 60
+    rays_per_object: int = 48
     """Rays per object instance per iteration."""
-    rays_per_structure: int = 120
+    rays_per_structure: int = 96
     """Rays per wall / floor / ceiling per iteration."""
+    refit_steps: int = 20
+    """Distillation steps when an instance moves to a larger or agreed frame (a third of the run's 60)."""
     consistency: str = "consensus"
     """Parameter consistency (eq. 12): consensus, dinno, dsgd or none."""
-    consistency_iterations: int = 2
+    consistency_iterations: int = 1
     """Consistency iterations per step (data loss + eq. 12 + eq. 13)."""
     rays_per_pose: int = 64
     """Pixels a ray message replays per shared pose (eq. 13)."""
@@ -76,7 +79,7 @@ class EnvConfig:
     """Reward cost per megabyte sent."""
     budget_penalty: float = 0.05
     """Reward penalty per message refused because its sender's budget was spent."""
-    probe_points: int = 3000
+    probe_points: int = 2000
     """Observable-surface samples the completion estimate probes (also the map channels' points)."""
     map_size: int = 64
     """Observation side in pixels (top-down map of the room)."""
@@ -89,6 +92,9 @@ class EnvConfig:
     threads: int | None = 1
     """Torch threads (None: all cores). One by default: the env's batches are small, several envs often
     share a machine, and a second thread waiting on a busy core slowed a ``tiny`` step 30x here."""
+    agent_workers: int | None = None
+    """Threads running the agents' learning side by side (None: one per core, at most one per agent);
+    results do not depend on it."""
     frame_cache_mb: float = 256.0
     """Rendered frames kept in memory across episodes (the paths repeat; past the cap frames are rendered)."""
     cache_dir: str | None = None
@@ -113,6 +119,8 @@ class EnvConfig:
         for name in ("frames_per_agent", "frames_per_round", "keyframe_every", "probe_points", "rays_per_pose"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+        if self.agent_workers is not None and self.agent_workers < 1:
+            raise ValueError(f"agent_workers must be >= 1 or None, got {self.agent_workers}")
         if self.map_size < 8:
             raise ValueError(f"map_size must be at least 8 pixels, got {self.map_size}")
         return self
@@ -126,12 +134,17 @@ class EnvConfig:
 
     def team_config(self) -> TeamConfig:
         mapping = MappingConfig(keyframe_every=self.keyframe_every, iterations_per_keyframe=self.iterations_per_keyframe,
-                                rays_per_object=self.rays_per_object, rays_per_structure=self.rays_per_structure)
+                                rays_per_object=self.rays_per_object, rays_per_structure=self.rays_per_structure,
+                                refit_steps=self.refit_steps)
         return TeamConfig(mapping=mapping, frames_per_round=self.frames_per_round, alignment=self.alignment,
                           consistency=ConsistencyConfig(algorithm=self.consistency, iterations=self.consistency_iterations,
                                                         cross_rendering=self.cross_rendering,
                                                         rays_per_pose=self.rays_per_pose),
                           exchange=ExchangeConfig(float16=self.float16, changed_only=self.changed_only))
+
+    def workers(self) -> int:
+        """Agent worker threads: ``agent_workers``, or one per core up to one per agent."""
+        return self.agent_workers or max(1, min(self.num_agents, available_cores()))
 
     def channel_config(self) -> ChannelConfig:
         budget = None if self.comm_budget_mb is None else self.comm_budget_mb * 1e6
@@ -146,7 +159,7 @@ _PRESETS: dict[str, dict] = {
     "fast": dict(),
     "full": dict(frames_per_agent=200, image_width=320, image_height=240, frames_per_round=10, keyframe_every=2,
                  iterations_per_keyframe=20, rays_per_object=120, rays_per_structure=300, consistency_iterations=5,
-                 rays_per_pose=256, probe_points=10000, map_size=96),
+                 rays_per_pose=256, refit_steps=60, probe_points=10000, map_size=96),
 }
 FIELD_NAMES = tuple(f.name for f in fields(EnvConfig))
 
@@ -159,6 +172,6 @@ def env_config(preset: str = "fast", **overrides) -> EnvConfig:
     unknown = sorted(set(overrides) - set(FIELD_NAMES))
     if unknown:
         raise TypeError(f"unknown env option(s) {unknown}; the options are {list(FIELD_NAMES)}")
-    nullable = {"horizon", "comm_budget_mb", "changed_only", "threads", "cache_dir"}
+    nullable = {"horizon", "comm_budget_mb", "changed_only", "threads", "cache_dir", "agent_workers"}
     chosen = {k: v for k, v in overrides.items() if v is not None or k in nullable}
     return replace(EnvConfig(**_PRESETS[preset]), **chosen).validate()

@@ -175,8 +175,10 @@ class OpenMultiParallelEnv(ParallelEnv, EzPickle):
                                 render=self._frames.render)
         if self._vocabulary is None:
             self._vocabulary = world_vocabulary(self.world, encoder)
+        if self.team is not None:
+            self.team.close()
         self.team = Team(streams, cfg.team_config(), self._vocabulary, seed=episode_seed,
-                         channel=cfg.channel_config(), device=cfg.device)
+                         channel=cfg.channel_config(), device=cfg.device, workers=cfg.workers())
         self.agents = list(self.possible_agents)
         self.steps = 0
         self._observers = [AgentObservation(self._grid) for _ in self.agents]
@@ -223,8 +225,9 @@ class OpenMultiParallelEnv(ParallelEnv, EzPickle):
             self._observers[i].add_frames([member.stream.read(k)[0] for k in range(
                 member.next_frame - report.frames_read[i], member.next_frame)])
         gains = np.zeros(len(self.agents))
-        for i, member in enumerate(self.team.members):
-            self._covered[i] = surface_probe_coverage(member.mapper, self._probe_points, self._probe_normals)
+        self._covered = self.team.each_member(
+            lambda m: surface_probe_coverage(m.mapper, self._probe_points, self._probe_normals))
+        for i in range(len(self.agents)):
             ratio = float(np.mean(self._covered[i]))
             gains[i], self._completion[i] = ratio - self._completion[i], ratio
         t2 = time.perf_counter()
@@ -323,6 +326,8 @@ class OpenMultiParallelEnv(ParallelEnv, EzPickle):
         return compose(tiles, team_panel(self._floor, paths, positions, *self._links))
 
     def close(self) -> None:
+        if self.team is not None:
+            self.team.close()
         if self.world is not None:
             self.world.close()
 

@@ -159,10 +159,18 @@ class TeamMember:
         return self.next_frame >= len(self.stream)
 
     # ---- 1-3: perceive, fuse, local iterations ---------------------------------------------------
-    def local_round(self) -> LocalReport:
+    def read_round(self) -> tuple[list[tuple[Frame, FrameSegmentation]], float]:
+        """The round's frames and their segmentations from the stream (not yet taken), with the seconds
+        it took; the stream (renderer, segmenter, text encoder) is only ever called from one thread."""
         start = time.perf_counter()
         stop = min(self.next_frame + self.config.frames_per_round, len(self.stream))
-        read = [self.stream.read(i) for i in range(self.next_frame, stop)]
+        return [self.stream.read(i) for i in range(self.next_frame, stop)], time.perf_counter() - start
+
+    def local_round(self, read: tuple[list, float] | None = None) -> LocalReport:
+        """Take the round's frames (``read_round``'s result, read now when None), fuse, train."""
+        read, read_s = self.read_round() if read is None else read
+        start = time.perf_counter()
+        stop = self.next_frame + len(read)
         self.max_frame_read = max(self.max_frame_read, stop - 1)
         indices = list(range(self.next_frame, stop))
         self.next_frame = stop
@@ -172,7 +180,7 @@ class TeamMember:
             self.labels.setdefault(iid, self.vocabulary.label(inst.caption_feature))
         keyframes = sum(self.mapper.ingest(frame, image) for frame, image in zip(frames, images))
         loss = self.mapper.train(keyframes * self.config.mapping.iterations_per_keyframe) if keyframes else 0.0
-        return LocalReport(indices, keyframes, loss, time.perf_counter() - start)
+        return LocalReport(indices, keyframes, loss, read_s + time.perf_counter() - start)
 
     # ---- 4: messages -----------------------------------------------------------------------------
     def parameter_message(self, receiver: int, round_index: int, degree: int) -> ParameterMessage:
