@@ -81,6 +81,7 @@ the env is headless). `comm_budget_mb`: megabytes each agent may send per episod
 
 from __future__ import annotations
 
+import gc
 import time
 import warnings
 
@@ -175,8 +176,10 @@ class OpenMultiParallelEnv(ParallelEnv, EzPickle):
                                 render=self._frames.render)
         if self._vocabulary is None:
             self._vocabulary = world_vocabulary(self.world, encoder)
-        if self.team is not None:
+        if self.team is not None:  # the old team's maps sit in reference cycles: free them now, not whenever
             self.team.close()
+            self.team = None
+            gc.collect()
         self.team = Team(streams, cfg.team_config(), self._vocabulary, seed=episode_seed,
                          channel=cfg.channel_config(), device=cfg.device, workers=cfg.workers())
         self.agents = list(self.possible_agents)

@@ -207,3 +207,15 @@ def test_world_cache_is_trimmed_to_its_cap(tmp_path):
         os.utime(tmp_path / f"{k}.npz", (1000 + k, 1000 + k))  # 0 is the oldest
     trim_world_cache(tmp_path, max_mb=0.9, keep=tmp_path / "0.npz")
     assert sorted(p.name for p in tmp_path.glob("*.npz")) == ["0.npz", "2.npz"]
+
+
+def test_agent_worker_threads_do_not_change_the_episode(cache):
+    one = _episode(parallel_env(preset="tiny", num_agents=3, cache_dir=cache, agent_workers=1), seed=8, action_seed=3)
+    two = _episode(parallel_env(preset="tiny", num_agents=3, cache_dir=cache, agent_workers=2), seed=8, action_seed=3)
+    for a, b in zip(one, two):
+        for x, y in zip(a, b):
+            for agent in x:
+                if isinstance(x[agent], np.ndarray):
+                    np.testing.assert_array_equal(x[agent], y[agent])
+                else:
+                    assert x[agent] == y[agent]
