@@ -4,6 +4,7 @@ paths walked so far and the links used this step (parameters: white, rays: cyan,
 from __future__ import annotations
 
 import numpy as np
+from scipy.ndimage import grey_dilation
 from skimage.draw import line
 
 AGENT_COLOURS = np.array([[230, 25, 75], [60, 180, 75], [0, 130, 200], [245, 130, 48], [145, 30, 180],
@@ -14,10 +15,11 @@ TILE_PX = 192
 
 def agent_tile(observation: np.ndarray, colour: np.ndarray) -> np.ndarray:
     """(TILE_PX, TILE_PX, 3) picture of one observation: map height in grey where the map reproduces the
-    surface, observed-but-unmapped cells dark blue, received instances green, own path in the agent's
+    surface (the sparse probe cells dilated by one cell for the eye), observed-but-unmapped cells dark blue, received instances green, own path in the agent's
     colour, peers' last known positions yellow."""
-    height, coverage, observed, received, path, peers = (observation[..., k].astype(np.float32) / 255
-                                                         for k in range(6))
+    planes = [observation[..., k].astype(np.float32) / 255 for k in range(6)]
+    planes[0], planes[1] = grey_dilation(planes[0], size=3), grey_dilation(planes[1], size=3)  # probes are sparse
+    height, coverage, observed, received, path, peers = planes
     rgb = np.zeros(observation.shape[:2] + (3,), np.float32)
     rgb += (observed > 0)[..., None] * np.array([0.05, 0.08, 0.25])
     shade = (0.35 + 0.65 * height) * (coverage > 0)
@@ -35,6 +37,7 @@ def team_panel(floor: np.ndarray, paths: list[np.ndarray], positions: list[np.nd
     units, in its colour) and a line per link used this step between the agents' current cells."""
     size = floor.shape[0]
     scale = TILE_PX / size
+    floor = grey_dilation(floor, size=3)  # the probes' cells, thickened for the eye
     img = _upscale(np.repeat((floor[..., None] > 0) * np.uint8(60), 3, axis=2), TILE_PX)
     for a, cells in enumerate(paths):
         for r, c in cells:

@@ -1,10 +1,6 @@
 """
 # OpenMulti
 
-```{figure} openmulti.png
-:width: 600px
-```
-
 | Import             | `from openmulti_env import parallel_env` (or `openmulti_env.openmulti_v0`) |
 |--------------------|----------------------------------------------------------------------------|
 | Actions            | MultiBinary                                                                |
@@ -201,11 +197,12 @@ class OpenMultiParallelEnv(ParallelEnv, EzPickle):
         cfg = self.config
         self.world, self.last_cache_hit = cached_world(cfg.scene, self.world_seed, cfg.world_config(),
                                                        cfg.cache_dir, cfg.cache_max_mb)
-        points, normals, _ = self.world.surface.sample_points(cfg.probe_points, seed=self.world_seed)
+        points, normals, ids = self.world.surface.sample_points(cfg.probe_points, seed=self.world_seed)
         self._probe_points, self._probe_normals = points, normals
         size = np.asarray(self.world.scene.size_m, float)
         self._grid = TopDownGrid.around(np.zeros(2), size[:2], cfg.map_size)
-        self._probes = ProbeRaster(self._grid, points, float(size[2]))
+        ceiling = [inst.instance_id for inst in self.world.scene.instances if inst.category == "ceiling"]
+        self._probes = ProbeRaster(self._grid, points, float(size[2]), hidden=np.isin(ids, ceiling))
         floor = np.zeros(cfg.map_size ** 2, np.uint8)
         floor[self._probes.flat] = 255
         self._floor = floor.reshape(cfg.map_size, cfg.map_size)

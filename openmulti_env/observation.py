@@ -6,7 +6,7 @@ along +y of the room, columns along +x; the room's floor box fills the square wi
 kept. The channels (``OBSERVATION_CHANNELS``):
 
 0. ``map_height``: the highest point of the agent's map per cell (top of the room = 255), read where its
-   fields reproduce the probed surface samples (``mapping.evaluate.probe``);
+   fields reproduce the probed surface samples (``mapping.evaluate.probe``; the ceiling left out);
 1. ``map_coverage``: share of the cell's probed surface samples its map reproduces;
 2. ``observed``: cells its own depth frames have hit (its own coverage, whatever it learned);
 3. ``received``: footprints of the instance boxes it holds from peers (parameters received);
@@ -67,11 +67,14 @@ class TopDownGrid:
 
 class ProbeRaster:
     """The surface probes' cells, computed once per world: turns per-probe coverage into the two map
-    channels."""
+    channels. Probes on the ceiling (``hidden``) stay out: seen from above it would cover the room."""
 
-    def __init__(self, grid: TopDownGrid, points: np.ndarray, room_height_m: float):
+    def __init__(self, grid: TopDownGrid, points: np.ndarray, room_height_m: float,
+                 hidden: np.ndarray | None = None):
         self.grid = grid
         rows, cols, inside = grid.cells(points)
+        if hidden is not None:
+            inside = inside & ~np.asarray(hidden, bool)
         self.keep = inside
         self.flat = rows[inside] * grid.size + cols[inside]
         self.height = np.clip(points[inside, 2] / max(room_height_m, 1e-6), 0, 1)

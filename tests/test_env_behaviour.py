@@ -219,3 +219,22 @@ def test_agent_worker_threads_do_not_change_the_episode(cache):
                     np.testing.assert_array_equal(x[agent], y[agent])
                 else:
                     assert x[agent] == y[agent]
+
+
+def test_world_cache_key_follows_a_manifests_meshes(tmp_path):
+    import json
+
+    import trimesh
+
+    from openmulti_env.env_config import env_config
+    from openmulti_env.world_cache import world_cache_key
+
+    trimesh.creation.box((0.5, 0.5, 0.5)).export(tmp_path / "box.obj")
+    manifest = tmp_path / "room.json"
+    manifest.write_text(json.dumps({"name": "r", "room": {"size_m": [3, 3, 2.5]},
+                                    "objects": [{"mesh": "box.obj", "category": "box", "position_m": [1.5, 1.5]}]}))
+    config = env_config("tiny").world_config()
+    before = world_cache_key(str(manifest), 0, config)
+    assert before == world_cache_key(str(manifest), 0, config)
+    trimesh.creation.box((0.6, 0.5, 0.5)).export(tmp_path / "box.obj")  # same manifest, another mesh
+    assert world_cache_key(str(manifest), 0, config) != before
