@@ -155,7 +155,7 @@ _PRESETS: dict[str, dict] = {
     "tiny": dict(scene="tiny", num_agents=2, frames_per_agent=16, image_width=80, image_height=60,
                  planning_points=1500, culling_edge_m=0.1, frames_per_round=2, keyframe_every=2,
                  iterations_per_keyframe=1, rays_per_object=24, rays_per_structure=48, consistency_iterations=1,
-                 rays_per_pose=24, probe_points=800, map_size=48),
+                 rays_per_pose=24, refit_steps=10, probe_points=600, map_size=48),
     "fast": dict(),
     "full": dict(frames_per_agent=200, image_width=320, image_height=240, frames_per_round=10, keyframe_every=2,
                  iterations_per_keyframe=20, rays_per_object=120, rays_per_structure=300, consistency_iterations=5,
