@@ -77,10 +77,13 @@ def load_row(path: Path, settings: dict) -> dict | None:
 
 def run_table(specs: list[RunSpec], preset: str, out: Path, threads: int | None = 1, device: str = "cpu",
               three_cullings: bool = True, max_rounds: int | None = None, progress: bool = True,
-              run_fn: Callable[..., dict] | None = None) -> list[dict]:
+              run_fn: Callable[..., dict] | None = None, keep_files: bool = False) -> list[dict]:
     """Run (or reuse) every spec; returns their rows in the specs' order.
 
     Args:
+        keep_files: keep each finished run's team checkpoint and meshes (by default they are deleted
+            once its row is written: a ``fast`` team checkpoint is ~0.3 GB, the meshes ~0.2 GB, and a
+            table needs tens of runs; ``metrics.json`` and ``rounds.json`` stay).
         run_fn: the run function (default ``openmulti_env.run.run``; tests pass a stand-in).
     """
     if run_fn is None:
@@ -107,5 +110,14 @@ def run_table(specs: list[RunSpec], preset: str, out: Path, threads: int | None 
             write_json_atomic(out / "rows" / f"{key}.json",
                               {"settings": run_settings(spec, preset, three_cullings, max_rounds), "row": row})
             rows[i] = row
+            if not keep_files:
+                _drop_bulky_files(out / "runs" / key)
             bar.update(1)
     return rows
+
+
+def _drop_bulky_files(run_dir: Path) -> None:
+    """Delete a finished run's checkpoints and meshes (its metrics and round reports stay)."""
+    for pattern in ("checkpoints/*.pt", "meshes/*.ply"):
+        for path in run_dir.glob(pattern):
+            path.unlink(missing_ok=True)
