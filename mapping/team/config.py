@@ -30,6 +30,8 @@ class ConsistencyConfig:
     """Poses a ray message carries (the round's frames, evenly spread)."""
     samples_per_box: int = 16
     """Samples per crossed instance box when rendering shared rays."""
+    free_space_weight: float = 0.0
+    """Weight of eq. 13's optional free-space term (``render_consistency_loss``; 0: the plain L1)."""
 
 
 @dataclass(frozen=True)

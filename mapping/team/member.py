@@ -317,7 +317,8 @@ class TeamMember:
             used = 0
             own_fields = self._own_fields()
             for sender, bundle in zip(senders, rays):
-                loss, n = render_consistency_loss(own_fields, self._peer_fields(sender), bundle, c.samples_per_box)
+                loss, n = render_consistency_loss(own_fields, self._peer_fields(sender), bundle, c.samples_per_box,
+                                                  free_space_weight=c.free_space_weight)
                 render, used = render + loss, used + n
             terms["render"], terms["render_rays"] = float(render.detach()), used
             return total + c.render_weight * render
