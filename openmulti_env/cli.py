@@ -170,6 +170,21 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_cache(args: argparse.Namespace) -> int:
+    """Report (or clear) the env's cache of world geometry."""
+    from openmulti_env.world_cache import clear_world_cache, world_cache_dir  # noqa: PLC0415
+
+    folder = world_cache_dir(args.dir)
+    if args.clear:
+        freed = clear_world_cache(args.dir)
+        print(f"cleared {folder}: {freed / 1e6:.1f} MB freed")
+        return 0
+    entries = sorted(folder.glob("*.npz")) if folder.is_dir() else []
+    print(f"{folder}: {len(entries)} world(s), {sum(p.stat().st_size for p in entries) / 1e6:.1f} MB "
+          "(openmulti cache --clear empties it)")
+    return 0
+
+
 def _fmt(x) -> str:
     return "-" if x is None else f"{x:.2f}"
 
@@ -248,6 +263,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--free-space-only", action="store_true",
                    help="score with today's free-space culling only (skip the NICE-SLAM and unculled scores)")
     p.set_defaults(func=cmd_reproduce)
+
+    p = sub.add_parser("cache", help="the env's world-geometry cache: where it is, its size, --clear")
+    p.add_argument("--dir", metavar="DIR", help="cache folder (default: $OPENMULTI_CACHE/worlds or ~/.cache/openmulti/worlds)")
+    p.add_argument("--clear", action="store_true", help="delete every cached world")
+    p.set_defaults(func=cmd_cache)
 
     for name, why in PENDING.items():
         p = sub.add_parser(name, help=f"(not available yet: {why})")

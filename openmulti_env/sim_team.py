@@ -16,14 +16,15 @@ from openmulti_env.world_stream import WorldStream
 
 def world_streams(world: World, seed: int, segmentation_errors: bool = True,
                   errors: SegmentationErrorConfig | None = None, text_encoder: TextEncoder | None = None,
-                  image_encoder: ImageTextEncoder | None = None) -> list[WorldStream]:
-    """One stream per agent: render -> oracle segmenter (errors seeded per agent) -> caption features."""
+                  image_encoder: ImageTextEncoder | None = None, render=None) -> list[WorldStream]:
+    """One stream per agent: render -> oracle segmenter (errors seeded per agent) -> caption features
+    (``render``: a replacement for ``world.render``, e.g. ``RenderCache(world).render``)."""
     encoder = text_encoder or shared_text_encoder()
     config = errors or (SegmentationErrorConfig() if segmentation_errors else SegmentationErrorConfig.none())
     infos = instance_infos(world.scene)
     anchors = instance_anchor_points(world.scene, seed=seed)
     return [WorldStream(world, a, OracleSegmenter(infos, config, seed=seed, agent=a, anchor_points=anchors), encoder,
-                        image_encoder) for a in range(world.num_agents)]
+                        image_encoder, render=render) for a in range(world.num_agents)]
 
 
 def world_vocabulary(world: World, text_encoder: TextEncoder | None = None) -> Vocabulary:

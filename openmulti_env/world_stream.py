@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 from collections import OrderedDict
+from typing import Callable
 
 from mapping.data import Frame
 from mapping.perception import FrameSegmentation, TextEncoder
@@ -13,13 +14,37 @@ from mapping.perception.segmenter import OracleSegmenter
 from openmulti_env.world.world import World
 
 
+class RenderCache:
+    """Rendered frames of one world kept in memory up to ``max_mb``: an env renders the same paths every
+    episode (only the segmentation draws change), and rendering is a third of a ``tiny`` step. Frames
+    past the cap are rendered each time. Cached frames are shared: nothing downstream writes into them (the
+    env's determinism test compares a cold and a warm episode)."""
+
+    def __init__(self, world: World, max_mb: float = 256.0):
+        self.world, self.max_bytes = world, max_mb * 1e6
+        self._frames: dict[tuple[int, int], Frame] = {}
+        self.bytes = 0
+
+    def render(self, agent: int, index: int) -> Frame:
+        key = (agent, index)
+        frame = self._frames.get(key)
+        if frame is None:
+            frame = self.world.render(agent, index)
+            size = sum(a.nbytes for a in (frame.rgb, frame.depth, frame.instance) if a is not None)
+            if self.bytes + size <= self.max_bytes:
+                self._frames[key], self.bytes = frame, self.bytes + size
+        return frame
+
+
 class WorldStream:
     """Agent ``agent``'s path through ``world``; the last ``cache`` frames are kept (a ray message
-    re-reads the round's poses)."""
+    re-reads the round's poses). ``render`` replaces ``world.render`` (e.g. a ``RenderCache``'s)."""
 
     def __init__(self, world: World, agent: int, segmenter: OracleSegmenter, text_encoder: TextEncoder,
-                 image_encoder: ImageTextEncoder | None = None, cache: int = 16):
+                 image_encoder: ImageTextEncoder | None = None, cache: int = 16,
+                 render: Callable[[int, int], Frame] | None = None):
         self.world, self.agent, self.segmenter = world, agent, segmenter
+        self._render = render or world.render
         self.text_encoder, self.image_encoder = text_encoder, image_encoder
         self.cache = cache
         self._frames: OrderedDict[int, tuple[Frame, FrameSegmentation]] = OrderedDict()
@@ -34,7 +59,7 @@ class WorldStream:
         if index in self._frames:
             self._frames.move_to_end(index)
             return self._frames[index]
-        frame = self.world.render(self.agent, index)
+        frame = self._render(self.agent, index)
         seg = encode_segments(self.segmenter.segment(frame), frame, self.text_encoder, self.image_encoder)
         self.max_index_read = max(self.max_index_read, index)
         self._frames[index] = (frame, seg)

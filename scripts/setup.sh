@@ -31,8 +31,9 @@ fi
 PIP="$VENV/bin/pip"
 echo "[setup] installing torch==2.13.0 (CPU)"
 "$PIP" install -q torch==2.13.0
-echo "[setup] installing openmulti and its dependencies"
-"$PIP" install -q -e ".[dev]"
+echo "[setup] installing openmulti, its dependencies and the RL clients the tests use"
+# torch is named again so that no dependency (SB3, TorchRL) can move it off the CPU build
+"$PIP" install -q -e ".[dev,test]" "torch==2.13.0"
 # pyrender pins PyOpenGL 3.1.0, whose OSMesa binding lacks OSMesaCreateContextAttribs; 3.1.10 works
 # for both EGL and OSMesa (pip warns about the pin; it is harmless).
 "$PIP" install -q "PyOpenGL==3.1.10" 2>/dev/null || true

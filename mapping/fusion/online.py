@@ -72,11 +72,21 @@ class OnlineInstance:
     adopted: bool = False
     best_round_confidence: float = 0.0
     _tree: cKDTree | None = None
+    _bounds: tuple[np.ndarray, np.ndarray] | None = None
 
     def tree(self) -> cKDTree:
         if self._tree is None:
             self._tree = cKDTree(self.points)
         return self._tree
+
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """(3,) lowest and highest corner of its points (cached: association tests every instance)."""
+        if self._bounds is None:
+            self._bounds = (self.points.min(0), self.points.max(0))
+        return self._bounds
+
+    def points_changed(self) -> None:
+        self._tree = self._bounds = None
 
 
 def _unit(v: np.ndarray) -> np.ndarray:
@@ -167,11 +177,18 @@ class OnlineFusion:
         unit = _unit(feature)
         for iid, inst in self.instances.items():
             p = inst.points
-            if len(p) == 0 or np.any(p.max(0) < lo) or np.any(p.min(0) > hi):
+            if len(p) == 0:
                 continue
-            d_new, _ = inst.tree().query(points, k=1, distance_upper_bound=cfg.overlap_radius_m)
-            d_old, _ = query.query(p, k=1, distance_upper_bound=cfg.overlap_radius_m)
-            overlap = max(float(np.mean(np.isfinite(d_new))), float(np.mean(np.isfinite(d_old))))
+            p_lo, p_hi = inst.bounds()
+            if np.any(p_hi < lo) or np.any(p_lo > hi):
+                continue
+            # only points inside the other's box (grown by the radius) can be near it: query just those
+            r = cfg.overlap_radius_m
+            near_new = np.all((points >= p_lo - r) & (points <= p_hi + r), axis=1)
+            near_old = np.all((p >= lo) & (p <= hi), axis=1)
+            d_new, _ = inst.tree().query(points[near_new], k=1, distance_upper_bound=r)
+            d_old, _ = query.query(p[near_old], k=1, distance_upper_bound=r)
+            overlap = max(np.isfinite(d_new).sum() / len(points), np.isfinite(d_old).sum() / len(p))
             similar = float(unit @ inst.caption_feature) > cfg.caption_similarity
             if (overlap > cfg.overlap_similar and similar) or overlap > cfg.overlap_any:
                 if overlap > best_score:
@@ -182,7 +199,7 @@ class OnlineFusion:
         cfg = self.config
         inst.points = _cap(np.concatenate([inst.points, np.asarray(points, np.float64)]), cfg.voxel_size_m,
                            cfg.max_points)
-        inst._tree = None
+        inst.points_changed()
         total = inst.frames + frames
         if frames:
             inst.confidence = (inst.confidence * inst.frames + confidence * frames) / total

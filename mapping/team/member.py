@@ -95,6 +95,7 @@ class TeamMember:
         self.sent_vectors: dict[int, dict[int, np.ndarray]] = {}
         self.sent_cloud_points: dict[int, dict[int, int]] = {}
         self.duals: dict[str, torch.Tensor] = {}
+        self.peer_positions: dict[int, tuple[int, np.ndarray]] = {}  # peer -> (round, (3,) position) from its rays
         self._shadow: dict[int, tuple[int, list]] = {}
 
     @property
@@ -106,10 +107,18 @@ class TeamMember:
         return self.next_frame >= len(self.stream)
 
     # ---- 1-3: perceive, fuse, local iterations ---------------------------------------------------
-    def local_round(self) -> LocalReport:
+    def read_round(self) -> tuple[list[tuple[Frame, FrameSegmentation]], float]:
+        """The round's frames and their segmentations from the stream (not yet taken), with the seconds
+        it took; the stream (renderer, segmenter, text encoder) is only ever called from one thread."""
         start = time.perf_counter()
         stop = min(self.next_frame + self.config.frames_per_round, len(self.stream))
-        read = [self.stream.read(i) for i in range(self.next_frame, stop)]
+        return [self.stream.read(i) for i in range(self.next_frame, stop)], time.perf_counter() - start
+
+    def local_round(self, read: tuple[list, float] | None = None) -> LocalReport:
+        """Take the round's frames (``read_round``'s result, read now when None), fuse, train."""
+        read, read_s = self.read_round() if read is None else read
+        start = time.perf_counter()
+        stop = self.next_frame + len(read)
         self.max_frame_read = max(self.max_frame_read, stop - 1)
         indices = list(range(self.next_frame, stop))
         self.next_frame = stop
@@ -121,7 +130,7 @@ class TeamMember:
             self.labels.setdefault(iid, self.vocabulary.label(inst.caption_feature))
         keyframes = sum(self.mapper.ingest(frame, image) for frame, image in zip(frames, images))
         loss = self.mapper.train(keyframes * self.config.mapping.iterations_per_keyframe) if keyframes else 0.0
-        return LocalReport(indices, keyframes, loss, time.perf_counter() - start)
+        return LocalReport(indices, keyframes, loss, read_s + time.perf_counter() - start)
 
     # ---- 4: messages -----------------------------------------------------------------------------
     def parameter_message(self, receiver: int, round_index: int, degree: int) -> ParameterMessage:
@@ -276,6 +285,11 @@ class TeamMember:
             c = centre[0].tolist()
             theirs = InstanceFrame((c[0], c[1], c[2]), float(half[0]), theirs.origin, theirs.version + 1)
         return theirs
+
+    def note_rays(self, message: RayMessage) -> None:
+        """A ray message arrived: its last pose is where its sender was (all a member knows of its peers'
+        positions)."""
+        self.peer_positions[message.sender] = (message.round, np.asarray(message.poses[-1][:3, 3], np.float64))
 
     # ---- 6: consistency iterations ---------------------------------------------------------------
     def consistency_round(self, ray_messages: Sequence[RayMessage]) -> dict:

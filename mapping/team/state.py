@@ -36,6 +36,7 @@ def member_state(m: TeamMember) -> dict:
         "sent_vectors": {int(p): {int(i): torch.as_tensor(v) for i, v in t.items()} for p, t in m.sent_vectors.items()},
         "sent_cloud_points": {int(p): {int(i): int(v) for i, v in t.items()} for p, t in m.sent_cloud_points.items()},
         "duals": {k: v.cpu() for k, v in m.duals.items()},
+        "peer_positions": {int(k): [int(r), torch.as_tensor(x)] for k, (r, x) in m.peer_positions.items()},
     }
 
 
@@ -54,4 +55,5 @@ def restore_member(m: TeamMember, s: dict) -> None:
     m.sent_vectors = {int(p): {int(i): np.asarray(v.numpy()) for i, v in t.items()} for p, t in s["sent_vectors"].items()}
     m.sent_cloud_points = {int(p): dict(t) for p, t in s["sent_cloud_points"].items()}
     m.duals = {k: v.to(m.mapper.device) for k, v in s["duals"].items()}
+    m.peer_positions = {int(k): (int(r), x.numpy()) for k, (r, x) in s.get("peer_positions", {}).items()}
     m._shadow = {}

@@ -123,12 +123,19 @@ class Team:
         seed: drives network initialisation, ray sampling, ray-message seeds and channel draws.
         channel: link success and budget.
         device: "cpu", "cuda" or "auto".
+        workers: threads that run the agents' local and consistency phases side by side (1: in turn).
+            Each agent touches only its own state there (streams are read in the calling thread
+            first), so results do not depend on it; give each torch 1 intra-op thread when > 1.
     """
 
     def __init__(self, streams: Sequence[AgentStream], config: TeamConfig, vocabulary: Vocabulary, seed: int = 0,
-                 channel: ChannelConfig = ChannelConfig(), device: str = "auto"):
+                 channel: ChannelConfig = ChannelConfig(), device: str = "auto", workers: int = 1):
         if not streams:
             raise ValueError("a team needs at least one agent stream")
+        if workers < 1:
+            raise ValueError(f"workers must be >= 1, got {workers}")
+        self.workers = min(workers, len(streams))
+        self._pool = None
         self.config, self.seed = config, seed
         self.members = [TeamMember(i, s, config, vocabulary, seed=seed * 100 + i, device=device)
                         for i, s in enumerate(streams)]
@@ -156,7 +163,8 @@ class Team:
         n = self.num_agents
         plan = plan.validate(n)
         t = self.round_index
-        local = [m.local_round() for m in self.members]
+        reads = [m.read_round() for m in self.members]  # the streams stay on this thread (GL, encoders)
+        local = self.each_member(lambda m: m.local_round(reads[m.index]))
         # ---- exchange -------------------------------------------------------------------------
         start = time.perf_counter()
         sent0, recv0, link0 = self.channel.bytes_sent.copy(), self.channel.bytes_received.copy(), \
@@ -182,23 +190,26 @@ class Team:
                                        "bytes": d.bytes})
                     if d.status == DELIVERED and d.kind != "points":  # clouds are counted, not learned from
                         (params_in if d.kind == "params" else rays_in)[j].append(d.message)
-        alignment = {}
-        arrival_s = [0.0] * n
-        for j in range(n):
+                        if d.kind != "params":
+                            self.members[j].note_rays(d.message)
+        exchange_s = time.perf_counter() - start
+
+        # ---- arrival and consistency, each receiver on its own ---------------------------------------
+        def receive_and_agree(member: TeamMember) -> tuple[dict, dict, float]:
             t0 = time.perf_counter()
             counts = {"adopted": 0, "matched": 0, "merged": 0, "refit": 0}
-            for message in params_in[j]:
-                for k, v in self.members[j].receive_parameters(message).items():
+            for message in params_in[member.index]:
+                for k, v in member.receive_parameters(message).items():
                     counts[k] += v
-            alignment[self.members[j].name] = counts
-            arrival_s[j] = time.perf_counter() - t0
-        exchange_s = time.perf_counter() - start - sum(arrival_s)
-        # ---- consistency ------------------------------------------------------------------------
-        losses, consistency_s = {}, []
-        for j, member in enumerate(self.members):
-            terms = member.consistency_round(rays_in[j])
-            consistency_s.append(terms.pop("seconds") + arrival_s[j])
-            losses[member.name] = {"data": local[j].loss, **terms}
+            arrival = time.perf_counter() - t0
+            terms = member.consistency_round(rays_in[member.index])
+            return counts, terms, arrival + terms.pop("seconds")
+
+        alignment, losses, consistency_s = {}, {}, []
+        for member, (counts, terms, seconds) in zip(self.members, self.each_member(receive_and_agree)):
+            alignment[member.name] = counts
+            losses[member.name] = {"data": local[member.index].loss, **terms}
+            consistency_s.append(seconds)
         self.round_index += 1
         statuses = [d["status"] for d in deliveries]
         return RoundReport(
@@ -210,6 +221,28 @@ class Team:
             over_budget=statuses.count(OVER_BUDGET), deliveries=deliveries, alignment=alignment, losses=losses,
             local_s=[r.seconds for r in local], consistency_s=consistency_s, exchange_s=max(exchange_s, 0.0),
             done=self.done)
+
+    def each_member(self, job):
+        """``job(member)`` for every member, results in member order; side by side on ``workers``
+        threads (``job`` must touch only that member's state, e.g. probing its map)."""
+        if self.workers == 1:
+            return [job(m) for m in self.members]
+        if self._pool is None:
+            from concurrent.futures import ThreadPoolExecutor  # noqa: PLC0415
+
+            self._pool = ThreadPoolExecutor(self.workers, thread_name_prefix="team-agent")
+        return list(self._pool.map(job, self.members))
+
+    def close(self) -> None:
+        """Stop the worker threads (a team is usable again afterwards: they restart on demand)."""
+        if self._pool is not None:
+            self._pool.shutdown()
+            self._pool = None
+
+    def __getstate__(self):
+        state = dict(self.__dict__)
+        state["_pool"] = None
+        return state
 
     # ---- checkpoints ------------------------------------------------------------------------------
     def save(self, path: str | Path, extra: dict | None = None) -> Path:

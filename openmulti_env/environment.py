@@ -1,0 +1,350 @@
+"""
+# OpenMulti
+
+| Import             | `from openmulti_env import parallel_env` (or `openmulti_env.openmulti_v0`) |
+|--------------------|----------------------------------------------------------------------------|
+| Actions            | MultiBinary                                                                |
+| Parallel API       | Yes                                                                        |
+| Manual Control     | No                                                                         |
+| Agents             | `agents= ['agent_0', ..., 'agent_{N-1}']`                                  |
+| Agents             | N = 2-8 (preset `fast`/`full`: 4, `tiny`: 2)                               |
+| Action Shape       | (2(N-1),)                                                                  |
+| Action Values      | {0, 1}                                                                     |
+| Observation Shape  | (map_size, map_size, 7): 64x64x7 (`fast`), 48x48x7 (`tiny`), 96x96x7 (`full`) |
+| Observation Values | uint8 [0, 255]                                                             |
+| State Shape        | (map_size, map_size, 7N)                                                   |
+| State Values       | uint8 [0, 255]                                                             |
+
+N robots with RGB-D cameras walk planned paths through one simulated indoor room; each builds its own
+instance-level implicit map (one small network per object, the OpenMulti paper). One env step is one
+round of the collaborative learner (`mapping.team.Team.round`): every agent reads its next frames,
+fuses them into its instances and trains; then the messages its action asks for cross the channel
+(per-link success draws, an optional byte budget); receivers align what arrived (adopting instances
+they never saw) and run parameter consistency (eq. 12) and Cross Rendering Supervision (eq. 13).
+
+### Actions
+Agent i's action has 2(N-1) entries over its peers in ascending index order, skipping itself: entry
+k < N-1 is 1 to send its network parameters (per instance: vector, box, code-book entry; the first
+time also a down-sampled cloud) to peer k; entry N-1+k is 1 to share its ray directions (poses and a
+pixel seed, never depth) with peer k.
+
+### Observations
+A top-down map of the room (rows +y, columns +x), channels last (`openmulti_env.observation`):
+`map_height` (the agent's map's highest surface per cell where its fields reproduce the probed surface),
+`map_coverage` (share of the cell's probed surface its map reproduces), `observed` (cells its own depth
+has hit), `received` (footprints of the object instances held from peers), `own_path` (path 128,
+current position 255), `peer_poses` (peers' last positions known from their ray messages, fading with
+age), `budget_left` (constant plane: share of its budget left; 255 without a budget).
+
+### Rewards
+The completion ratio (share of the observable ground-truth surface within 5 cm of an agent's map) is
+estimated each step by probing the agent's fields along the normals of fixed surface samples
+(`mapping.evaluate.probe`; its agreement with the mesh-based metric is measured in
+`benchmarks/bench_env.py`). `reward="team"`: every agent gets the gain of the team's completion ratio
+(the mean over agents, as the paper reports it) this step, minus `comm_cost_per_mb` x the team's
+megabytes sent / N, minus `budget_penalty` x the team's refused messages / N. `reward="individual"`:
+its own gain, its own megabytes and refused messages. Ratios are fractions (0-1): an episode's return
+without costs is the final completion ratio.
+
+### Episode
+Truncation when every path is read (`fast`: 24 steps, `tiny`: 8, `full`: 20) or after `horizon` steps;
+no termination. `infos[agent]` always holds the same numeric keys: `completion_ratio` (percent),
+`completion_gain` (percent points), `bytes_sent`, `bytes_received` (this step), `bytes_sent_total`,
+`budget_left_mb` (inf without a budget), `messages_delivered`, `messages_dropped`,
+`messages_refused` (its own messages this step), `instances`, `instances_received`, `step`.
+
+### Seeds
+The constructor's `seed` fixes the world (room layout and paths; default 0), so an env's episodes share a
+room and its cached geometry; `reset(seed=k)` fixes an episode (segmentation errors, channel draws,
+network initialisation, ray sampling). Same seeds, same actions: the same episode.
+
+### Arguments
+```python
+parallel_env(scene=None, num_agents=None, preset="fast", seed=None, render_mode=None,
+             comm_budget_mb=None, reward="team", max_cycles=None, **overrides)
+```
+`scene`: a preset name, `random:SEED` or a manifest path (default: the preset's, room0; `tiny`: the
+small `tiny` room). `num_agents`: 2-8 (default: the preset's). `preset`: `tiny`, `fast` or `full`.
+`seed`: the world's seed. `render_mode`: None or `rgb_array` (`human` is accepted and draws nothing:
+the env is headless). `comm_budget_mb`: megabytes each agent may send per episode. `reward`: `team` or
+`individual`. `max_cycles`: the horizon (alias of `horizon`). `overrides`: any `EnvConfig` field
+(`openmulti_env.env_config`), e.g. `success_probability=0.5`, `comm_cost_per_mb=0.01`,
+`consistency="dinno"`, `map_size=96`, `threads=1`, `cache_dir=...`.
+
+### Version History
+* v0: first release (openmulti 0.1).
+"""
+
+from __future__ import annotations
+
+import gc
+import time
+import warnings
+
+import numpy as np
+from gymnasium import spaces
+from gymnasium.utils import EzPickle, seeding
+from pettingzoo import ParallelEnv
+from pettingzoo.utils import parallel_to_aec, wrappers
+
+from mapping.evaluate.probe import surface_probe_coverage
+from mapping.perception import shared_text_encoder
+from mapping.runtime import set_threads
+from mapping.team import Team
+from openmulti_env.actions import ActionError, actions_to_plan
+from openmulti_env.env_config import EnvConfig, env_config
+from openmulti_env.env_render import AGENT_COLOURS, agent_tile, compose, team_panel
+from openmulti_env.observation import (OBSERVATION_CHANNELS, AgentObservation, ProbeRaster, TopDownGrid, peer_plane,
+                                       received_plane)
+from openmulti_env.sim_team import world_streams, world_vocabulary
+from openmulti_env.world_cache import cached_world
+from openmulti_env.world_stream import RenderCache
+
+INFO_KEYS = ("completion_ratio", "completion_gain", "bytes_sent", "bytes_received", "bytes_sent_total",
+             "budget_left_mb", "messages_delivered", "messages_dropped", "messages_refused", "instances",
+             "instances_received", "step")
+RENDER_MODES = ("rgb_array",)
+
+
+class OpenMultiParallelEnv(ParallelEnv, EzPickle):
+    """The collaborative mapper as a PettingZoo ParallelEnv (see the module docstring)."""
+
+    metadata = {"name": "openmulti_v0", "render_modes": list(RENDER_MODES), "render_fps": 2,
+                "is_parallelizable": True}
+
+    def __init__(self, scene: str | None = None, num_agents: int | None = None, preset: str = "fast",
+                 seed: int | None = None, render_mode: str | None = None, comm_budget_mb: float | None = None,
+                 reward: str = "team", max_cycles: int | None = None, **overrides):
+        EzPickle.__init__(self, scene=scene, num_agents=num_agents, preset=preset, seed=seed, render_mode=render_mode,
+                          comm_budget_mb=comm_budget_mb, reward=reward, max_cycles=max_cycles, **overrides)
+        if max_cycles is not None and overrides.get("horizon") is not None and overrides["horizon"] != max_cycles:
+            raise ValueError(f"max_cycles={max_cycles} and horizon={overrides['horizon']} disagree; give one")
+        if max_cycles is not None:
+            overrides["horizon"] = max_cycles
+        self.config: EnvConfig = env_config(preset, scene=scene, num_agents=num_agents, comm_budget_mb=comm_budget_mb,
+                                            reward=reward, **overrides)
+        if render_mode is not None and render_mode not in RENDER_MODES + ("human",):
+            raise ValueError(f"unknown render_mode {render_mode!r}; choose None or one of {list(RENDER_MODES)}")
+        if render_mode == "human":
+            warnings.warn("openmulti_v0 is headless: render_mode='human' draws nothing (render() returns None); "
+                          "use render_mode='rgb_array' for pictures", stacklevel=2)
+        self.render_mode = render_mode
+        self.preset = preset
+        self.world_seed = 0 if seed is None else int(seed)
+        n = self.config.num_agents
+        self.possible_agents = [f"agent_{i}" for i in range(n)]
+        self.agents: list[str] = []
+        size = self.config.map_size
+        self._observation_space = spaces.Box(0, 255, (size, size, len(OBSERVATION_CHANNELS)), np.uint8)
+        self._action_space = spaces.MultiBinary(2 * (n - 1))
+        self.state_space = spaces.Box(0, 255, (size, size, len(OBSERVATION_CHANNELS) * n), np.uint8)
+        self._episode_rng, _ = seeding.np_random(seed)
+        self.world = None
+        self.team: Team | None = None
+        self.timings: dict[str, float] = {}
+        self.last_cache_hit: bool | None = None
+
+    # ---- spaces (the same objects on every call) ---------------------------------------------------
+    def observation_space(self, agent: str) -> spaces.Box:
+        self._check_agent(agent)
+        return self._observation_space
+
+    def action_space(self, agent: str) -> spaces.MultiBinary:
+        self._check_agent(agent)
+        return self._action_space
+
+    def _check_agent(self, agent: str) -> None:
+        if agent not in self.possible_agents:
+            raise KeyError(f"unknown agent {agent!r}; the agents are {self.possible_agents}")
+
+    # ---- episode -------------------------------------------------------------------------------------
+    def reset(self, seed: int | None = None, options: dict | None = None):
+        """A fresh team on the env's world; ``seed`` fixes the episode. ``options`` are not used."""
+        start = time.perf_counter()
+        if seed is not None:
+            self._episode_rng, _ = seeding.np_random(seed)
+        episode_seed = int(self._episode_rng.integers(2**31 - 1))
+        self._build_world()
+        cfg = self.config
+        set_threads(cfg.threads)
+        encoder = shared_text_encoder(name=cfg.text_encoder, persist=True)
+        streams = world_streams(self.world, episode_seed, cfg.segmentation_errors, text_encoder=encoder,
+                                render=self._frames.render)
+        if self._vocabulary is None:
+            self._vocabulary = world_vocabulary(self.world, encoder)
+        if self.team is not None:  # the old team's maps sit in reference cycles: free them now, not whenever
+            self.team.close()
+            self.team = None
+            gc.collect()
+        self.team = Team(streams, cfg.team_config(), self._vocabulary, seed=episode_seed,
+                         channel=cfg.channel_config(), device=cfg.device, workers=cfg.workers())
+        self.agents = list(self.possible_agents)
+        self.steps = 0
+        self._observers = [AgentObservation(self._grid) for _ in self.agents]
+        self._completion = np.zeros(len(self.agents))
+        self._covered = [np.zeros(len(self._probe_points), bool) for _ in self.agents]
+        self._links = (np.zeros((len(self.agents),) * 2, bool),) * 2
+        self._last_report = None
+        observations = {a: self._observe(i) for i, a in enumerate(self.agents)}
+        infos = {a: self._info(i, None, 0.0) for i, a in enumerate(self.agents)}
+        self.timings = {"reset_s": time.perf_counter() - start}
+        return observations, infos
+
+    def _build_world(self) -> None:
+        """The world once per env (cached on disk across envs and processes), with its probes and grid."""
+        if self.world is not None:
+            return
+        cfg = self.config
+        self.world, self.last_cache_hit = cached_world(cfg.scene, self.world_seed, cfg.world_config(),
+                                                       cfg.cache_dir, cfg.cache_max_mb)
+        points, normals, ids = self.world.surface.sample_points(cfg.probe_points, seed=self.world_seed)
+        self._probe_points, self._probe_normals = points, normals
+        size = np.asarray(self.world.scene.size_m, float)
+        self._grid = TopDownGrid.around(np.zeros(2), size[:2], cfg.map_size)
+        ceiling = [inst.instance_id for inst in self.world.scene.instances if inst.category == "ceiling"]
+        self._probes = ProbeRaster(self._grid, points, float(size[2]), hidden=np.isin(ids, ceiling))
+        floor = np.zeros(cfg.map_size ** 2, np.uint8)
+        floor[self._probes.flat] = 255
+        self._floor = floor.reshape(cfg.map_size, cfg.map_size)
+        self._vocabulary = None
+        self._frames = RenderCache(self.world, cfg.frame_cache_mb)
+
+    def step(self, actions: dict):
+        if self.team is None:
+            raise RuntimeError("call reset() before step()")
+        if not self.agents:
+            raise RuntimeError("the episode has ended (every agent is truncated); call reset() to start another")
+        t0 = time.perf_counter()
+        try:
+            plan = actions_to_plan(actions, self.agents)
+        except ActionError as exc:
+            raise ActionError(f"{exc} (action space of each agent: {self._action_space})") from None
+        report = self.team.round(plan)
+        t1 = time.perf_counter()
+        for i, member in enumerate(self.team.members):
+            self._observers[i].add_frames([member.stream.read(k)[0] for k in range(
+                member.next_frame - report.frames_read[i], member.next_frame)])
+        gains = np.zeros(len(self.agents))
+        self._covered = self.team.each_member(
+            lambda m: surface_probe_coverage(m.mapper, self._probe_points, self._probe_normals))
+        for i in range(len(self.agents)):
+            ratio = float(np.mean(self._covered[i]))
+            gains[i], self._completion[i] = ratio - self._completion[i], ratio
+        t2 = time.perf_counter()
+        rewards = self._rewards(report, gains)
+        self.steps += 1
+        self._links = (plan.send_params, plan.share_rays)
+        self._last_report = report
+        observations = {a: self._observe(i) for i, a in enumerate(self.agents)}
+        t3 = time.perf_counter()
+        infos = {a: self._info(i, report, 100.0 * gains[i]) for i, a in enumerate(self.agents)}
+        ended = self.team.done or (self.config.horizon is not None and self.steps >= self.config.horizon)
+        terminations = {a: False for a in self.agents}
+        truncations = {a: bool(ended) for a in self.agents}
+        if ended:
+            self.agents = []
+        self.timings = {"learner_s": t1 - t0 - report.exchange_s, "exchange_s": report.exchange_s,
+                        "reward_s": t2 - t1, "observation_s": t3 - t2,
+                        "local_s": float(sum(report.local_s)), "consistency_s": float(sum(report.consistency_s))}
+        return observations, rewards, terminations, truncations, infos
+
+    def _rewards(self, report, gains: np.ndarray) -> dict[str, float]:
+        cfg = self.config
+        n = len(self.possible_agents)
+        mb = np.asarray(report.bytes_sent, float) / 1e6
+        refused = np.zeros(n)
+        for d in report.deliveries:
+            if d["status"] == "over_budget":
+                refused[d["sender"]] += 1
+        own = gains - cfg.comm_cost_per_mb * mb - cfg.budget_penalty * refused
+        if cfg.reward == "individual":
+            values = own
+        else:
+            values = np.full(n, gains.mean() - (cfg.comm_cost_per_mb * mb.sum() + cfg.budget_penalty * refused.sum()) / n)
+        return {a: float(values[i]) for i, a in enumerate(self.possible_agents)}
+
+    # ---- observations, infos, state ----------------------------------------------------------------
+    def _observe(self, i: int) -> np.ndarray:
+        member = self.team.members[i]
+        height, coverage = self._probes.channels(self._covered[i])
+        boxes = [(p.bound_lo, p.bound_hi) for table in member.held.values() for p in table.values()
+                 if p.bank == "object"]
+        position = self.world.agent_poses[i][member.next_frame - 1][:3, 3] if member.next_frame else None
+        peers = peer_plane(self._grid, member.peer_positions, self.team.round_index - 1)
+        return self._observers[i].assemble(height, coverage, received_plane(self._grid, boxes), position, peers,
+                                           self._budget_share(i))
+
+    def _budget_share(self, i: int) -> float:
+        budget = self.team.channel_config.budget_bytes
+        if budget is None:
+            return 1.0
+        return float(self.team.channel.budget_left(i) / budget) if budget > 0 else 0.0
+
+    def _info(self, i: int, report, gain_pct: float) -> dict[str, float]:
+        member, channel = self.team.members[i], self.team.channel
+        counts = {"delivered": 0, "dropped": 0, "over_budget": 0}
+        for d in (report.deliveries if report is not None else ()):
+            if d["sender"] == i:
+                counts[d["status"]] += 1
+        own_ids = [k for k in member.mapper.live_ids() if member.mapper.keyframes.has_pixels(k)]
+        info = {"completion_ratio": 100.0 * float(self._completion[i]), "completion_gain": float(gain_pct),
+                "bytes_sent": float(report.bytes_sent[i]) if report is not None else 0.0,
+                "bytes_received": float(report.bytes_received[i]) if report is not None else 0.0,
+                "bytes_sent_total": float(channel.bytes_sent[i]),
+                "budget_left_mb": float(channel.budget_left(i) / 1e6),
+                "messages_delivered": float(counts["delivered"]), "messages_dropped": float(counts["dropped"]),
+                "messages_refused": float(counts["over_budget"]),
+                "instances": float(len(member.mapper.live_ids())),
+                "instances_received": float(len(member.mapper.live_ids()) - len(own_ids)),
+                "step": float(self.steps)}
+        assert tuple(info) == INFO_KEYS
+        return info
+
+    def state(self) -> np.ndarray:
+        """All agents' observations stacked on the channel axis: (map_size, map_size, 7N) uint8."""
+        if self.team is None:
+            raise RuntimeError("call reset() before state()")
+        return np.concatenate([self._observe(i) for i in range(len(self.possible_agents))], axis=-1)
+
+    # ---- pictures ----------------------------------------------------------------------------------
+    def render(self):
+        """``rgb_array``: (192, W, 3) uint8, the agents' maps then the team panel; None otherwise."""
+        if self.render_mode is None:
+            warnings.warn("render() called with render_mode=None; make the env with render_mode='rgb_array'",
+                          stacklevel=2)
+            return None
+        if self.render_mode != "rgb_array" or self.team is None:
+            return None
+        tiles = [agent_tile(self._observe(i), AGENT_COLOURS[i % len(AGENT_COLOURS)])
+                 for i in range(len(self.possible_agents))]
+        paths, positions = [], []
+        for i, member in enumerate(self.team.members):
+            xy = self.world.agent_poses[i][:member.next_frame, :3, 3]
+            rows, cols, inside = self._grid.cells(xy)
+            paths.append(list(zip(rows[inside], cols[inside])))
+            positions.append((rows[-1], cols[-1]) if len(xy) and inside[-1] else None)
+        return compose(tiles, team_panel(self._floor, paths, positions, *self._links))
+
+    def close(self) -> None:
+        if self.team is not None:
+            self.team.close()
+        if self.world is not None:
+            self.world.close()
+
+
+def parallel_env(**kwargs) -> OpenMultiParallelEnv:
+    """The native parallel env (keywords as ``OpenMultiParallelEnv``)."""
+    return OpenMultiParallelEnv(**kwargs)
+
+
+def raw_env(**kwargs):
+    """The AEC form through PettingZoo's conversion."""
+    return parallel_to_aec(parallel_env(**kwargs))
+
+
+def env(**kwargs):
+    """The AEC form with PettingZoo's standard wrappers (an action out of bounds or given to a dead agent is
+    an error, ``render`` and ``observe`` before ``reset`` are refused)."""
+    wrapped = raw_env(**kwargs)
+    wrapped = wrappers.AssertOutOfBoundsWrapper(wrapped)
+    return wrappers.OrderEnforcingWrapper(wrapped)

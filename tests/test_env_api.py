@@ -1,0 +1,104 @@
+"""PettingZoo's own checks on the env, over a list of configurations (agents 2-6, both rewards, with and
+without a budget, presets tiny and fast), plus pickling and the registry."""
+
+from __future__ import annotations
+
+import functools
+import pickle
+import types
+import warnings
+
+import numpy as np
+import pytest
+from pettingzoo.test import api_test, max_cycles_test, parallel_api_test, parallel_seed_test, render_test, seed_test
+from pettingzoo.test.state_test import state_test
+
+import openmulti_env
+from openmulti_env import env, parallel_env, raw_env
+
+CONFIGS = [
+    dict(preset="tiny", num_agents=2),
+    dict(preset="tiny", num_agents=3, reward="individual"),
+    dict(preset="tiny", num_agents=4, comm_budget_mb=0.05),
+    dict(preset="tiny", num_agents=6, reward="individual", comm_budget_mb=0.02, comm_cost_per_mb=0.1),
+    dict(preset="fast", num_agents=4, max_cycles=2),
+]
+IDS = ["tiny-2", "tiny-3-individual", "tiny-4-budget", "tiny-6-individual-budget", "fast-4"]
+
+
+@pytest.fixture(params=CONFIGS, ids=IDS)
+def config(request, tmp_path_factory):
+    cache = tmp_path_factory.getbasetemp() / "world-cache"  # one cache for the session: later builds hit
+    return {**request.param, "cache_dir": str(cache)}
+
+
+def test_parallel_api(config):
+    parallel_api_test(parallel_env(**config), num_cycles=100)
+
+
+def test_aec_api(config):
+    api_test(env(**config), num_cycles=100)
+
+
+def test_seeds(config):
+    parallel_seed_test(functools.partial(parallel_env, **config), num_cycles=10)
+    seed_test(functools.partial(env, **config), num_cycles=10)
+
+
+def test_state(config):
+    state_test(env(**config), parallel_env(**config), num_cycles=3)
+
+
+def test_render(config):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # render_test first makes the env with render_mode="human"
+        render_test(functools.partial(env, **config))
+
+
+def test_max_cycles(config):
+    if "max_cycles" in config:
+        pytest.skip("this configuration sets its own max_cycles")
+    module = types.SimpleNamespace(parallel_env=functools.partial(parallel_env, **config),
+                                   env=functools.partial(env, **config))
+    max_cycles_test(module)
+
+
+def test_max_cycles_on_the_module_itself(tmp_path_factory):
+    """PettingZoo calls ``parallel_env(max_cycles=4)`` with the module's defaults (preset fast)."""
+    from openmulti_env import openmulti_v0
+
+    cache = str(tmp_path_factory.getbasetemp() / "world-cache")
+    module = types.SimpleNamespace(parallel_env=functools.partial(openmulti_v0.parallel_env, cache_dir=cache),
+                                   env=functools.partial(openmulti_v0.env, cache_dir=cache))
+    max_cycles_test(module)
+
+
+@pytest.mark.parametrize("when", ["before reset", "after reset"])
+def test_pickles(when, tmp_path):
+    e = parallel_env(preset="tiny", cache_dir=str(tmp_path))
+    if when == "after reset":
+        e.reset(seed=3)
+        e.step({a: e.action_space(a).sample() for a in e.agents})
+    copy = pickle.loads(pickle.dumps(e))
+    obs, _ = copy.reset(seed=5)
+    again, _ = parallel_env(preset="tiny", cache_dir=str(tmp_path)).reset(seed=5)
+    for a in obs:
+        np.testing.assert_array_equal(obs[a], again[a])
+    aec = pickle.loads(pickle.dumps(env(preset="tiny", cache_dir=str(tmp_path))))
+    aec.reset(seed=1)
+    assert aec.agent_selection == "agent_0"
+
+
+def test_contract_names_and_registry(tmp_path):
+    import pettingzoo
+
+    assert openmulti_env.openmulti_v0.parallel_env is parallel_env
+    assert openmulti_env.openmulti_v0.raw_env is raw_env
+    e = pettingzoo.make("parallel", openmulti_env.ENV_ID, preset="tiny", cache_dir=str(tmp_path))
+    assert e.metadata["name"] == "openmulti_v0" and "rgb_array" in e.metadata["render_modes"]
+    assert e.metadata["render_fps"] > 0
+    assert e.possible_agents == ["agent_0", "agent_1"]
+    assert e.action_space("agent_1").shape == (2,)
+    aec = pettingzoo.make("aec", openmulti_env.ENV_ID, preset="tiny", cache_dir=str(tmp_path))
+    aec.reset(seed=0)
+    assert set(aec.agents) == {"agent_0", "agent_1"}

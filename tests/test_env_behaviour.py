@@ -1,0 +1,240 @@
+"""The env's behaviour beyond PettingZoo's checks: whole-episode determinism (cold and warm caches),
+errors that name the problem, rewards and infos, observations, the world cache."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from openmulti_env import parallel_env
+from openmulti_env.actions import ActionError
+from openmulti_env.env_config import FIELD_NAMES
+from openmulti_env.environment import INFO_KEYS
+from openmulti_env.observation import OBSERVATION_CHANNELS
+from openmulti_env.world_cache import WorldCacheWarning, clear_world_cache, world_cache_dir
+
+
+@pytest.fixture(scope="module")
+def cache(tmp_path_factory):
+    return str(tmp_path_factory.mktemp("worlds"))
+
+
+def _episode(e, seed: int, action_seed: int):
+    obs, infos = e.reset(seed=seed)
+    rng = np.random.default_rng(action_seed)
+    trace = [(obs, infos)]
+    while e.agents:
+        actions = {a: rng.integers(0, 2, e.action_space(a).shape).astype(np.int8) for a in e.agents}
+        trace.append(e.step(actions))
+    return trace
+
+
+def test_same_seed_same_actions_same_episode_cold_and_warm(tmp_path):
+    cold = parallel_env(preset="tiny", cache_dir=str(tmp_path))
+    first = _episode(cold, seed=11, action_seed=2)
+    assert cold.last_cache_hit is False
+    warm = parallel_env(preset="tiny", cache_dir=str(tmp_path))
+    second = _episode(warm, seed=11, action_seed=2)
+    assert warm.last_cache_hit is True
+    third = _episode(warm, seed=11, action_seed=2)  # the same env again: frames from its render cache
+    assert len(first) == len(second) == len(third) == 9  # reset + 16 frames / 2 per step
+    for a, b, c in zip(first, second, third):
+        for x, y, z in zip(a, b, c):
+            assert x.keys() == y.keys() == z.keys()
+            for agent in x:
+                if isinstance(x[agent], np.ndarray):
+                    np.testing.assert_array_equal(x[agent], y[agent])
+                    np.testing.assert_array_equal(x[agent], z[agent])
+                else:
+                    assert x[agent] == y[agent] == z[agent]
+
+
+def test_another_episode_seed_gives_another_episode(cache):
+    e = parallel_env(preset="tiny", cache_dir=cache)
+    a = _episode(e, seed=1, action_seed=0)
+    b = _episode(e, seed=2, action_seed=0)
+    assert any(a[k][1]["agent_0"] != b[k][1]["agent_0"] for k in range(1, len(a)))
+
+
+def test_bad_actions_name_the_agent_and_the_problem(cache):
+    e = parallel_env(preset="tiny", num_agents=3, cache_dir=cache)
+    with pytest.raises(RuntimeError, match="reset"):
+        e.step({})
+    e.reset(seed=0)
+    good = {a: np.zeros(4, np.int8) for a in e.agents}
+    with pytest.raises(ActionError, match=r"missing \['agent_2'\]"):
+        e.step({k: v for k, v in good.items() if k != "agent_2"})
+    with pytest.raises(ActionError, match="unknown"):
+        e.step({**good, "agent_9": np.zeros(4)})
+    with pytest.raises(ActionError, match=r"agent_1: action must have shape \(4,\)"):
+        e.step({**good, "agent_1": np.zeros(3)})
+    with pytest.raises(ActionError, match="agent_0: action entries must be 0 or 1"):
+        e.step({**good, "agent_0": np.array([0, 2, 0, 0])})
+    with pytest.raises(ActionError, match="agent_0"):
+        e.step({**good, "agent_0": np.array([0.5, 0, 0, 0])})
+    while e.agents:  # bad actions changed nothing: the episode still runs to its end
+        e.step(good)
+    with pytest.raises(RuntimeError, match="episode has ended"):
+        e.step(good)
+
+
+def test_bad_construction_is_refused_clearly(cache):
+    with pytest.raises(ValueError, match="unknown preset 'huge'"):
+        parallel_env(preset="huge")
+    with pytest.raises(TypeError, match="unknown env option"):
+        parallel_env(preset="tiny", rays_per_objekt=3)
+    with pytest.raises(ValueError, match="reward must be one of"):
+        parallel_env(preset="tiny", reward="selfish")
+    with pytest.raises(ValueError, match="num_agents must be between 2"):
+        parallel_env(preset="tiny", num_agents=1)
+    with pytest.raises(ValueError, match="render_mode"):
+        parallel_env(preset="tiny", render_mode="ascii")
+    with pytest.raises(ValueError, match="unknown scene"):
+        parallel_env(preset="tiny", scene="castle", cache_dir=cache).reset(seed=0)
+    with pytest.raises(KeyError, match="unknown agent 'agent_7'"):
+        parallel_env(preset="tiny").observation_space("agent_7")
+    assert "rays_per_object" in FIELD_NAMES
+
+
+def test_infos_rewards_and_budget(cache):
+    e = parallel_env(preset="tiny", cache_dir=cache, comm_budget_mb=0.02, budget_penalty=0.5, reward="individual")
+    obs, infos = e.reset(seed=4)
+    assert all(tuple(i) == INFO_KEYS for i in infos.values())
+    always = {a: np.ones(2, np.int8) for a in e.agents}
+    refused_seen, total_reward = False, 0.0
+    while e.agents:
+        obs, rewards, _, _, infos = e.step(always)
+        for a, info in infos.items():
+            assert tuple(info) == INFO_KEYS and all(isinstance(v, float) and np.isfinite(v) for v in info.values())
+            assert 0.0 <= info["budget_left_mb"] <= 0.02
+            penalty = 0.5 * info["messages_refused"]
+            assert rewards[a] == pytest.approx(info["completion_gain"] / 100 - penalty)
+            refused_seen |= info["messages_refused"] > 0
+            total_reward += rewards[a]
+            assert obs[a][..., OBSERVATION_CHANNELS.index("budget_left")].max() <= 255
+    assert refused_seen, "a 20 kB budget must run out on tiny"
+    assert all(info["bytes_sent_total"] <= 0.02e6 for info in infos.values())
+
+
+def test_team_reward_is_the_mean_gain_minus_shared_costs(cache):
+    e = parallel_env(preset="tiny", cache_dir=cache, comm_cost_per_mb=2.0)
+    e.reset(seed=5)
+    _, rewards, _, _, infos = e.step({a: np.ones(2, np.int8) for a in e.agents})
+    gain = np.mean([i["completion_gain"] for i in infos.values()]) / 100
+    mb = sum(i["bytes_sent"] for i in infos.values()) / 1e6
+    assert mb > 0
+    for r in rewards.values():
+        assert r == pytest.approx(gain - 2.0 * mb / 2)
+
+
+def test_silence_sends_nothing_and_receives_nothing(cache):
+    e = parallel_env(preset="tiny", cache_dir=cache)
+    e.reset(seed=6)
+    silent = {a: np.zeros(2, np.int8) for a in e.agents}
+    while e.agents:
+        obs, rewards, _, _, infos = e.step(silent)
+    for a in infos:
+        assert infos[a]["bytes_sent_total"] == 0 and infos[a]["instances_received"] == 0
+        assert infos[a]["budget_left_mb"] == float("inf")
+        assert obs[a][..., OBSERVATION_CHANNELS.index("received")].max() == 0
+        assert obs[a][..., OBSERVATION_CHANNELS.index("peer_poses")].max() == 0
+        assert (obs[a][..., OBSERVATION_CHANNELS.index("budget_left")] == 255).all()
+        assert infos[a]["completion_ratio"] > 5.0  # each agent maps its own part
+
+
+def test_talking_fills_the_received_and_peer_channels(cache):
+    e = parallel_env(preset="tiny", cache_dir=cache)
+    e.reset(seed=6)
+    for _ in range(4):
+        obs, _, _, _, infos = e.step({a: np.ones(2, np.int8) for a in e.agents})
+    for a in obs:
+        assert obs[a][..., OBSERVATION_CHANNELS.index("received")].max() == 255
+        assert obs[a][..., OBSERVATION_CHANNELS.index("peer_poses")].max() == 255
+        own = obs[a][..., OBSERVATION_CHANNELS.index("own_path")]
+        assert (own == 255).sum() == 1 and (own == 128).sum() >= 1
+        assert obs[a][..., OBSERVATION_CHANNELS.index("observed")].mean() > 0
+        assert obs[a][..., OBSERVATION_CHANNELS.index("map_coverage")].max() > 0
+        assert infos[a]["bytes_received"] > 0
+    state = e.state()
+    assert state.shape == e.state_space.shape and e.state_space.contains(state)
+    np.testing.assert_array_equal(state[..., :len(OBSERVATION_CHANNELS)], obs["agent_0"])
+
+
+def test_render_shows_every_agent_and_the_team_panel(cache):
+    e = parallel_env(preset="tiny", num_agents=3, cache_dir=cache, render_mode="rgb_array")
+    e.reset(seed=0)
+    e.step({a: np.ones(4, np.int8) for a in e.agents})
+    img = e.render()
+    assert img.dtype == np.uint8 and img.ndim == 3 and img.shape[2] == 3
+    assert img.shape[0] == 192 and img.shape[1] == 4 * 192 + 3 * 4
+    assert (img[:, -192:] == (255, 225, 25)).all(-1).any()  # links used both ways this step are drawn
+
+
+def test_world_cache_corrupt_entry_is_rebuilt_with_a_warning(tmp_path):
+    e = parallel_env(preset="tiny", cache_dir=str(tmp_path))
+    e.reset(seed=0)
+    entries = list(world_cache_dir(tmp_path).glob("*.npz"))
+    assert len(entries) == 1
+    entries[0].write_bytes(b"not an npz")
+    fresh = parallel_env(preset="tiny", cache_dir=str(tmp_path))
+    with pytest.warns(WorldCacheWarning, match="unreadable"):
+        fresh.reset(seed=0)
+    assert fresh.last_cache_hit is False
+    assert clear_world_cache(tmp_path) > 0 and not list(world_cache_dir(tmp_path).glob("*.npz"))
+
+
+def test_world_cache_key_changes_with_what_shapes_the_world(tmp_path):
+    from openmulti_env.env_config import env_config
+    from openmulti_env.world_cache import world_cache_key
+
+    base = env_config("tiny")
+    key = world_cache_key("tiny", 0, base.world_config())
+    assert key == world_cache_key("tiny", 0, env_config("tiny").world_config())
+    assert key != world_cache_key("tiny", 1, base.world_config())
+    assert key != world_cache_key("tiny", 0, env_config("tiny", image_width=96).world_config())
+    assert key != world_cache_key("room0", 0, base.world_config())
+    # options that do not shape the world share its entry
+    assert key == world_cache_key("tiny", 0, env_config("tiny", rays_per_object=7).world_config())
+
+
+def test_world_cache_is_trimmed_to_its_cap(tmp_path):
+    from openmulti_env.world_cache import trim_world_cache
+
+    import os
+
+    for k in range(3):
+        (tmp_path / f"{k}.npz").write_bytes(b"x" * 400_000)
+        os.utime(tmp_path / f"{k}.npz", (1000 + k, 1000 + k))  # 0 is the oldest
+    trim_world_cache(tmp_path, max_mb=0.9, keep=tmp_path / "0.npz")
+    assert sorted(p.name for p in tmp_path.glob("*.npz")) == ["0.npz", "2.npz"]
+
+
+def test_agent_worker_threads_do_not_change_the_episode(cache):
+    one = _episode(parallel_env(preset="tiny", num_agents=3, cache_dir=cache, agent_workers=1), seed=8, action_seed=3)
+    two = _episode(parallel_env(preset="tiny", num_agents=3, cache_dir=cache, agent_workers=2), seed=8, action_seed=3)
+    for a, b in zip(one, two):
+        for x, y in zip(a, b):
+            for agent in x:
+                if isinstance(x[agent], np.ndarray):
+                    np.testing.assert_array_equal(x[agent], y[agent])
+                else:
+                    assert x[agent] == y[agent]
+
+
+def test_world_cache_key_follows_a_manifests_meshes(tmp_path):
+    import json
+
+    import trimesh
+
+    from openmulti_env.env_config import env_config
+    from openmulti_env.world_cache import world_cache_key
+
+    trimesh.creation.box((0.5, 0.5, 0.5)).export(tmp_path / "box.obj")
+    manifest = tmp_path / "room.json"
+    manifest.write_text(json.dumps({"name": "r", "room": {"size_m": [3, 3, 2.5]},
+                                    "objects": [{"mesh": "box.obj", "category": "box", "position_m": [1.5, 1.5]}]}))
+    config = env_config("tiny").world_config()
+    before = world_cache_key(str(manifest), 0, config)
+    assert before == world_cache_key(str(manifest), 0, config)
+    trimesh.creation.box((0.6, 0.5, 0.5)).export(tmp_path / "box.obj")  # same manifest, another mesh
+    assert world_cache_key(str(manifest), 0, config) != before
