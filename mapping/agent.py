@@ -68,6 +68,9 @@ class MappingConfig:
     of its frame's cube (``InstanceFieldBank.frame_coverage``)."""
     refit_steps: int = 60
     """Distillation steps of such a move (batched over the instances that move together)."""
+    global_frame: tuple[float, float, float, float] | None = None
+    """(centre x, y, z, half-size) given to every new instance instead of a frame from its first box:
+    the scene box of a global map (``mapping.team.global_map``), fixed so that it is never refit."""
 
 
 @dataclass
@@ -172,8 +175,12 @@ class MappingAgent:
         slot = self.slots.get(iid)
         if slot is None:
             name = "structure" if self.is_structure(iid) else "object"
+            frame = {}
+            if self.config.global_frame is not None:
+                cx, cy, cz, half = self.config.global_frame
+                frame = {"frame_centre": torch.tensor([[cx, cy, cz]]), "frame_half": torch.tensor([half])}
             row = self.banks[name].add_instances(1, torch.as_tensor(bound.lo[None]), torch.as_tensor(bound.hi[None]),
-                                                 generator=self.init_generator)[0]
+                                                 generator=self.init_generator, **frame)[0]
             self.slots[iid] = _InstanceSlot(name, row, bound, frame_origin=self.agent_index)
             return
         grown = slot.bound.union(bound)

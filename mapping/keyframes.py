@@ -88,6 +88,8 @@ def _draw(offsets: np.ndarray, sizes: np.ndarray, pixels: np.ndarray, entries: n
           generator: np.random.Generator) -> np.ndarray:
     """One random pixel of each listed entry (entries with an empty pool give -1)."""
     size = sizes[entries]
+    if len(pixels) == 0:  # no pool has a pixel (a global map's "other surfaces": every pixel is its own)
+        return np.full(len(entries), -1, np.int64)
     pick = offsets[entries] + np.floor(generator.random(len(entries)) * size).astype(np.int64)
     return np.where(size > 0, pixels[np.minimum(pick, max(len(pixels) - 1, 0))], -1)
 

@@ -267,6 +267,10 @@ class CompositeRender:
     occupancy: Tensor
     colour: Tensor | None
     instance: Tensor
+    weights: Tensor | None = None
+    """(n_rays, M) termination weights T_p of the flattened rays' depth-sorted samples (differentiable)."""
+    sample_depths: Tensor | None = None
+    """(n_rays, M) the samples' depths (padding slots lie beyond ``far_m`` with weight 0)."""
 
 
 def composite_instances(fields: Sequence[InstanceField], rays: RayBundle, config: CompositeConfig = CompositeConfig(),
@@ -344,7 +348,7 @@ def composite_instances(fields: Sequence[InstanceField], rays: RayBundle, config
     instance = torch.where(rendered.occupancy.detach() >= config.min_occupancy, instance, torch.full_like(instance, -1))
     return CompositeRender(rendered.depth.reshape(rays.shape), rendered.occupancy.reshape(rays.shape),
                            None if rendered.colour is None else rendered.colour.reshape(*rays.shape, 3),
-                           instance.reshape(rays.shape))
+                           instance.reshape(rays.shape), rendered.weights, depths)
 
 
 @torch.no_grad()

@@ -1,5 +1,5 @@
 """The ``openmulti`` command line: ``scenes``, ``run`` (a team maps a scene round by round under a scripted
-communication policy) and ``query``; ``reproduce`` and ``train`` arrive with the experiments and the env.
+communication policy), ``query`` and ``reproduce`` (the paper's tables); ``train`` arrives with the env.
 
 Heavy modules (torch, open3d, the world) are imported inside the commands that need them, so that
 ``openmulti query`` starts fast."""
@@ -21,7 +21,6 @@ RUN_PRESETS = ("full", "fast", "demo", "tiny")  # openmulti_env.run_presets chec
 MAX_AGENTS = 8  # openmulti_env.world.world.MAX_AGENTS (a test checks they agree)
 
 PENDING = {
-    "reproduce": "the paper's tables are the experiments issue, on top of the team",
     "train": "training communication schedules needs the PettingZoo env",
 }
 
@@ -159,6 +158,18 @@ def cmd_query(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_reproduce(args: argparse.Namespace) -> int:
+    """Run the runs of one of the paper's tables (or all) and write DIR/T.json, DIR/T.md, DIR/T.png."""
+    from openmulti_env.reproduce.command import reproduce  # noqa: PLC0415
+
+    written = reproduce(args.table, args.scenes, args.seeds, args.preset, args.out, agents=args.agents,
+                        threads=args.threads, device=args.device, three_cullings=not args.free_space_only)
+    for name in written:
+        print(Path(args.out, f"{name}.md").read_text())
+    print(f"Wrote {', '.join(f'{args.out}/{n}.json' for n in written)} (+ .md, .png)")
+    return 0
+
+
 def cmd_cache(args: argparse.Namespace) -> int:
     """Report (or clear) the env's cache of world geometry."""
     from openmulti_env.world_cache import clear_world_cache, world_cache_dir  # noqa: PLC0415
@@ -238,6 +249,20 @@ def build_parser() -> argparse.ArgumentParser:
                    help="text encoder (default: the one the run's code books record; another is refused)")
     p.add_argument("--plot", action="store_true", help="also write DIR/plots/query_<slug>.png (about a second more)")
     p.set_defaults(func=cmd_query)
+
+    p = sub.add_parser("reproduce", help="the paper's experiments: Tables I and III-VI (and the semantic table)")
+    p.add_argument("--table", required=True, help="geometric, multi-vs-single, semantic, ablation, comm-failure, "
+                   "transmission or all")
+    p.add_argument("--scenes", nargs="+", default=["room0"], metavar="S")
+    p.add_argument("--seeds", nargs="+", type=int, default=[0], metavar="K")
+    p.add_argument("--preset", choices=RUN_PRESETS, default="fast")
+    p.add_argument("--agents", type=_agents, default=4, help="agents of the team methods (single_agent has 1)")
+    p.add_argument("--out", default="runs/reproduce", metavar="DIR")
+    p.add_argument("--threads", type=int, default=1, help="torch threads per run (runs go one at a time)")
+    p.add_argument("--device", default="cpu", help="cpu, cuda or auto")
+    p.add_argument("--free-space-only", action="store_true",
+                   help="score with today's free-space culling only (skip the NICE-SLAM and unculled scores)")
+    p.set_defaults(func=cmd_reproduce)
 
     p = sub.add_parser("cache", help="the env's world-geometry cache: where it is, its size, --clear")
     p.add_argument("--dir", metavar="DIR", help="cache folder (default: $OPENMULTI_CACHE/worlds or ~/.cache/openmulti/worlds)")

@@ -20,27 +20,33 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from mapping.agent import MappingAgent
+from mapping.agent import MappingAgent, MappingConfig
+from mapping.field import OBJECT_FIELD
 from mapping.runtime import set_threads
 from mapping.team import ChannelConfig, ConsistencyConfig, ExchangeConfig, Team
 from mapping.team.consistency import CONSISTENCY_ALGORITHMS
+from mapping.team.global_map import global_rays_for, scene_frame
 from mapping.checkpoint import CheckpointError
 from mapping.data import Frame
-from mapping.evaluate import evaluate_mesh, export_scene_mesh, merge_instance_meshes
+from mapping.evaluate import export_scene_mesh, merge_instance_meshes
 from mapping.evaluate.semantic import semantic_metrics, zero_shot_labels
 from mapping.perception import CodeBook, shared_text_encoder
 from mapping.perception.errors import SegmentationErrorConfig
 from mapping.perception.image_encoder import VisualFeatureNotice, load_image_encoder
 from openmulti_env.actions import actions_to_plan
 from openmulti_env.run_presets import mapping_config, team_config, world_config
-from openmulti_env.results import finite_or_none, forget_stale_checkpoints, mean_or_none, write_json_atomic
+from openmulti_env.results import forget_stale_checkpoints, mean_or_none, write_json_atomic
+from openmulti_env.scoring import CameraViews, agents_camera_views, score_three_ways
 from openmulti_env.sim_team import world_streams, world_vocabulary
 from openmulti_env.team_perception import category_vocabulary, semantic_ground_truth
 from policies.scripted import ScriptedPolicy, parse_policy
 from openmulti_env.world import World
-from openmulti_env.world.visibility import cull_to_viewpoints
 
 METRIC_KEYS = ("acc_cm", "comp_cm", "comp_ratio", "f_miou", "f_macc")
+CULLING_KEYS = tuple(f"{m}{s}" for s in ("_nice", "_unculled") for m in ("acc_cm", "comp_cm", "comp_ratio"))
+"""The same geometry under the other cullings (``openmulti_env.scoring``), averaged like the rest."""
+GLOBAL_WIDTH = 128
+"""Hidden width of a global map's one network (vMAP's background network)."""
 RUN_ALIGNMENT_MODES = ("paper", "none")
 TEAM_ID_STRIDE = 100_000
 """Agent k's instance i is ``k * TEAM_ID_STRIDE + i`` in the union of all agents' maps."""
@@ -71,7 +77,9 @@ def run(scene: str, agents: int, policy: str, preset: str, seed: int, out: Path,
         alignment: str = "paper", segmentation_errors: bool = True, clip_checkpoint: str | None = None,
         comm_budget_mb: float | None = None, consistency: str = "consensus", cross_rendering: bool = True,
         float16: bool = False, changed_only: float | None = None, threads: int | None = None,
-        checkpoint_every: int = 5, progress: bool = True, max_rounds: int | None = None) -> dict:
+        checkpoint_every: int = 5, progress: bool = True, max_rounds: int | None = None,
+        global_map: bool = False, global_width: int = GLOBAL_WIDTH, share_point_clouds: bool = False,
+        three_cullings: bool = False, plots: bool = True) -> dict:
     """The whole run; returns the metrics dictionary written to ``out/metrics.json``.
 
     Args:
@@ -88,6 +96,11 @@ def run(scene: str, agents: int, policy: str, preset: str, seed: int, out: Path,
         threads: torch threads (default: all cores).
         checkpoint_every: save the team every this many rounds (an interrupted run resumes from it).
         max_rounds: stop after this many rounds (None: when the paths end), e.g. for smoke tests.
+        global_map: one network of width ``global_width`` for the whole scene per agent, with the
+            instance-level map's per-step compute (``mapping.team.global_map``): the global baselines.
+        share_point_clouds: "send parameters" links carry the observed points instead (Table VI).
+        three_cullings: also score every map NICE-SLAM-culled and unculled (``openmulti_env.scoring``).
+        plots: write the pictures (the experiments skip them: they cost seconds per run).
     """
     spec = parse_policy(policy)
     if alignment not in RUN_ALIGNMENT_MODES:
@@ -108,20 +121,26 @@ def run(scene: str, agents: int, policy: str, preset: str, seed: int, out: Path,
                 "alignment": alignment, "segmentation_errors": segmentation_errors, "clip_checkpoint": clip_checkpoint,
                 "comm_budget_mb": comm_budget_mb, "consistency": consistency, "cross_rendering": cross_rendering,
                 "float16": float16, "changed_only": changed_only}
+    if global_map or share_point_clouds or three_cullings:  # older runs' settings stay as they were
+        settings.update({"global_map": global_map, "global_width": global_width,
+                         "share_point_clouds": share_point_clouds, "three_cullings": three_cullings})
     forget_stale_checkpoints(out, settings)
     print(f"[openmulti] world {world.scene.name}: {len(world.scene.instances)} instances, "
           f"{world.num_agents} agent(s), {sum(len(p) for p in world.agent_poses)} frames")
     encoder = shared_text_encoder()
-    config = team_config(preset, alignment=alignment == "paper",
+    mapping, map_info = _map_structure(world, preset, global_map, global_width)
+    config = team_config(preset, mapping=mapping, alignment=alignment == "paper", global_map=global_map,
                          consistency=ConsistencyConfig(algorithm=consistency, cross_rendering=cross_rendering),
-                         exchange=ExchangeConfig(float16=float16, changed_only=changed_only))
+                         exchange=ExchangeConfig(float16=float16, changed_only=changed_only,
+                                                 point_clouds=share_point_clouds))
     budget = None if comm_budget_mb is None else comm_budget_mb * 1e6
     team = Team(world_streams(world, seed, segmentation_errors, text_encoder=encoder, image_encoder=image_encoder),
                 config, world_vocabulary(world, encoder), seed=seed,
                 channel=ChannelConfig(spec.success_probability, budget), device=device)
     reports = _run_rounds(team, ScriptedPolicy(spec, world.num_agents), out / "checkpoints" / "team.pt",
                           checkpoint_every, progress, max_rounds)
-    result = _evaluate(world, team, seed, out, encoder, image_encoder)
+    views = agents_camera_views(world, config.mapping.keyframe_every) if three_cullings else None
+    result = _evaluate(world, team, seed, out, encoder, image_encoder, views, plots)
     bytes_per_round = [int(sum(r["bytes_sent"])) for r in reports]
     result.update({
         "bytes_sent_total": int(team.channel.bytes_sent.sum()),
@@ -132,6 +151,7 @@ def run(scene: str, agents: int, policy: str, preset: str, seed: int, out: Path,
         "fleet_s": float(sum(r["fleet_s"] for r in reports)),
         "compute_s": {f"agent_{a}": float(sum(r["compute_s"][a] for r in reports)) for a in range(world.num_agents)},
         "rounds": len(reports),
+        "map": map_info,
         "wall_s": time.perf_counter() - start,
         "config": {**settings, "error_rates": asdict(SegmentationErrorConfig() if segmentation_errors
                                                      else SegmentationErrorConfig.none()),
@@ -139,11 +159,35 @@ def run(scene: str, agents: int, policy: str, preset: str, seed: int, out: Path,
     })
     write_json_atomic(out / "rounds.json", {"rounds": reports})
     write_json_atomic(out / "metrics.json", result)
-    from openmulti_env.world.plots import save_round_bytes  # noqa: PLC0415
+    if plots:
+        from openmulti_env.world.plots import save_round_bytes  # noqa: PLC0415
 
-    save_round_bytes(out / "plots" / "bytes_per_round.png", reports, f"{world.scene.name}: policy {policy}")
+        save_round_bytes(out / "plots" / "bytes_per_round.png", reports, f"{world.scene.name}: policy {policy}")
     world.close()
     return result
+
+
+def _map_structure(world: World, preset: str, global_map: bool, width: int) -> tuple[MappingConfig, dict]:
+    """The mapper settings and a description of the map (widths, rays per step) for the table.
+
+    A global map gets the scene box as its frame and the rays per step that buy the per-step MLP
+    FLOPs of an instance-level map of this scene's instances (``global_rays_for``)."""
+    mapping = mapping_config(preset)
+    objects = sum(1 for i in world.scene.instances if not i.is_structure)
+    structures = len(world.scene.instances) - objects
+    if not global_map:
+        return mapping, {"kind": "instance", "object_width": OBJECT_FIELD.hidden_width,
+                         "structure_width": mapping.structure_width, "rays_per_object": mapping.rays_per_object,
+                         "rays_per_structure": mapping.rays_per_structure,
+                         "rays_per_step_at_scene_instances": objects * mapping.rays_per_object
+                         + structures * mapping.rays_per_structure}
+    rays = global_rays_for(objects, structures, mapping.rays_per_object, mapping.rays_per_structure,
+                           OBJECT_FIELD.hidden_width, mapping.structure_width, width)
+    info = {"kind": "global", "width": width, "rays_per_step": rays,
+            "matched_to": f"{objects} objects x {mapping.rays_per_object} rays at width {OBJECT_FIELD.hidden_width} "
+                          f"+ {structures} structures x {mapping.rays_per_structure} at width {mapping.structure_width}"}
+    return replace(mapping, structure_width=width, rays_per_structure=rays,
+                   global_frame=scene_frame(world.scene.size_m)), info
 
 
 def _run_rounds(team: Team, policy: ScriptedPolicy, checkpoint: Path, every: int, progress: bool,
@@ -173,7 +217,8 @@ def _run_rounds(team: Team, policy: ScriptedPolicy, checkpoint: Path, every: int
     return reports
 
 
-def _evaluate(world: World, team: Team, seed: int, out: Path, encoder, image_encoder) -> dict:
+def _evaluate(world: World, team: Team, seed: int, out: Path, encoder, image_encoder,
+              views: CameraViews | None = None, plots: bool = True) -> dict:
     """Mesh, cull and score every agent's own map against the whole observable ground truth (the
     paper's per-agent metrics, averaged); the team map's semantics; code books; pictures."""
     vocabulary = category_vocabulary(world)
@@ -195,30 +240,30 @@ def _evaluate(world: World, team: Team, seed: int, out: Path, encoder, image_enc
             team_labels.update({iid + member.index * TEAM_ID_STRIDE: lab for iid, lab in labels.items()})
         _labelled(book, labels).save(out / "codebook", name)
         semantic = semantic_metrics(gt_points, gt_labels, np.asarray(mesh.vertices), ids, labels)
-        # score what free space can see of the reconstruction, as the ground truth is culled (README)
-        culled = cull_to_viewpoints(mesh, world.surface.viewpoints) if has_mesh else None
-        metrics = evaluate_mesh(culled if culled is not None and len(culled.faces) else None, gt, seed=seed)
-        raw = evaluate_mesh(mesh if has_mesh else None, gt, seed=seed)
+        # score what free space can see of the reconstruction, as the ground truth is culled (README);
+        # also NICE-SLAM-culled when asked, and unculled
+        scores = score_three_ways(mesh if has_mesh else None, gt, world.surface.viewpoints, views, seed)
         adopted = sum(1 for i in mapper.live_ids() if not mapper.keyframes.has_pixels(i))
-        per_agent[name] = {"acc_cm": finite_or_none(metrics.acc_cm), "comp_cm": finite_or_none(metrics.comp_cm),
-                           "comp_ratio": float(metrics.comp_ratio), "f_miou": semantic.f_miou,
-                           "f_macc": semantic.f_macc, "acc_cm_unculled": finite_or_none(raw.acc_cm),
+        per_agent[name] = {**scores, "f_miou": semantic.f_miou, "f_macc": semantic.f_macc,
                            "instances": len(mapper.live_ids()), "instances_without_own_pixels": adopted}
         meshes.append(mesh)
-        _save_rendered_views(out / "plots" / f"rendered_views_{name}.png", world, member.index, mapper)
+        if plots:
+            _save_rendered_views(out / "plots" / f"rendered_views_{name}.png", world, member.index, mapper)
     for suffix in (".json", ".npz"):  # agents' ids are their own: no team code book answers queries
         (out / "codebook" / f"team{suffix}").unlink(missing_ok=True)
     union = semantic_metrics(gt_points, gt_labels, np.concatenate(team_points) if team_points else np.zeros((0, 3)),
                              np.concatenate(team_ids) if team_ids else np.zeros(0, np.int64), team_labels)
-    from openmulti_env.world.plots import save_reconstruction_views, save_semantic_classes  # noqa: PLC0415
+    if plots:
+        from openmulti_env.world.plots import save_reconstruction_views, save_semantic_classes  # noqa: PLC0415
 
-    save_reconstruction_views(out / "plots" / "reconstruction_top_down.png", gt, meshes)
-    save_semantic_classes(out / "plots" / "semantic_per_class.png", union, f"{world.scene.name}: all agents' maps")
-    return {"agents": per_agent, "mean": {k: mean_or_none([m[k] for m in per_agent.values()]) for k in METRIC_KEYS},
+        save_reconstruction_views(out / "plots" / "reconstruction_top_down.png", gt, meshes)
+        save_semantic_classes(out / "plots" / "semantic_per_class.png", union, f"{world.scene.name}: all agents' maps")
+    keys = [k for k in METRIC_KEYS + CULLING_KEYS if all(k in m for m in per_agent.values())]
+    return {"agents": per_agent, "mean": {k: mean_or_none([m[k] for m in per_agent.values()]) for k in keys},
             "team": {"f_miou": union.f_miou, "f_macc": union.f_macc, "per_class": union.as_dict()["per_class"]},
             "notes": "Per-agent metrics: each agent's own map against the whole observable ground truth; mean = "
                      "their average (as the paper). Meshes are culled to what the free-space viewpoints can see; "
-                     "acc_cm_unculled scores the whole reconstruction. bytes_* count the serialised parameter and "
+                     "acc_cm_unculled scores the whole reconstruction (and *_nice NICE-SLAM-culled, when asked). bytes_* count the serialised parameter and "
                      "ray messages (and the clouds inside them). fleet_s: per round, the slowest agent's local "
                      "phase + the exchange + the slowest consistency phase, summed."}
 

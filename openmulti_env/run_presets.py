@@ -48,9 +48,11 @@ def frames_per_round(preset: str) -> int:
 
 
 def team_config(preset: str, **options) -> TeamConfig:
-    """The team settings of a run preset; ``options`` replace TeamConfig fields (e.g. ``consistency``;
+    """The team settings of a run preset; ``options`` replace TeamConfig fields (e.g. ``consistency``, or
+    ``mapping`` for other mapper settings than the preset's;
     on ``tiny`` its iterations and rays are cut to the preset's size)."""
-    config = TeamConfig(mapping=mapping_config(preset), frames_per_round=frames_per_round(preset), **options)
+    mapping = options.pop("mapping", None) or mapping_config(preset)
+    config = TeamConfig(mapping=mapping, frames_per_round=frames_per_round(preset), **options)
     if preset == "tiny":
         config = replace(config, consistency=replace(config.consistency, iterations=2, rays_per_pose=64))
     return config

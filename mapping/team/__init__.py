@@ -5,16 +5,19 @@
     arrival       Cross-Agent Instance Alignment on arrival (match / merge / adopt)
     consistency   parameter consistency, eq. 12: consensus, DiNNO, DSGD
     cross_rendering  Cross Rendering Supervision, eq. 13
+    config        TeamConfig, ConsistencyConfig, ExchangeConfig
+    global_map    the global-map mode (one network for the scene: the global baselines)
     member        one agent: online fusion, mapper, what it holds of its peers
     team          Team.round(plan) -> RoundReport, checkpoints
 """
 
 from mapping.team.channel import Channel, Delivery
-from mapping.team.member import (AgentStream, ConsistencyConfig, ExchangeConfig, TeamConfig, TeamMember,
-                                 Vocabulary)
-from mapping.team.messages import InstancePayload, MessageError, ParameterMessage, RayMessage, from_bytes, to_bytes
+from mapping.team.config import ConsistencyConfig, ExchangeConfig, TeamConfig
+from mapping.team.member import AgentStream, TeamMember, Vocabulary
+from mapping.team.messages import (InstancePayload, MessageError, ParameterMessage, PointCloudMessage, RayMessage,
+                                   from_bytes, to_bytes)
 from mapping.team.team import ChannelConfig, PlanError, RoundPlan, RoundReport, Team
 
 __all__ = ["AgentStream", "Channel", "ChannelConfig", "ConsistencyConfig", "Delivery", "ExchangeConfig",
-           "InstancePayload", "MessageError", "ParameterMessage", "PlanError", "RayMessage", "RoundPlan",
+           "InstancePayload", "MessageError", "ParameterMessage", "PlanError", "PointCloudMessage", "RayMessage", "RoundPlan",
            "RoundReport", "Team", "TeamConfig", "TeamMember", "Vocabulary", "from_bytes", "to_bytes"]

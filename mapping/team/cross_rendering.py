@@ -32,10 +32,16 @@ def rays_of_message(message: RayMessage, device: torch.device | str = "cpu") -> 
 
 
 def render_consistency_loss(own_fields: Sequence[InstanceField], peer_fields: Sequence[InstanceField],
-                            rays: RayBundle, samples_per_box: int = 16, min_peer_occupancy: float = 0.5
+                            rays: RayBundle, samples_per_box: int = 16, min_peer_occupancy: float = 0.5,
+                            free_space_weight: float = 0.0, free_space_margin_m: float = 0.05
                             ) -> tuple[Tensor, int]:
     """Eq. 13 on (M,) rays: mean |D_own - D_peer| over rays where the peer renders occupancy above
-    ``min_peer_occupancy``; the peer side carries no gradient. Returns (loss, rays used)."""
+    ``min_peer_occupancy``; the peer side carries no gradient. Returns (loss, rays used).
+
+    ``free_space_weight`` > 0 adds the termination weight my map puts more than
+    ``free_space_margin_m`` in front of the peer's depth (mean over the rays): the peer saw free space
+    there, so an occluder of mine in its view is removed directly instead of through the L1 on the
+    composited depth, whose gradient may as well add occupancy behind (an option, off by default)."""
     config = CompositeConfig(samples_per_box=samples_per_box)
     with torch.no_grad():
         peer = composite_instances(peer_fields, rays, config, with_colour=False)
@@ -44,4 +50,9 @@ def render_consistency_loss(own_fields: Sequence[InstanceField], peer_fields: Se
         device = rays.origins.device
         return torch.zeros((), device=device), 0
     own = composite_instances(own_fields, rays[use], config, with_colour=False)
-    return (own.depth - peer.depth[use]).abs().mean(), int(use.sum())
+    loss = (own.depth - peer.depth[use]).abs().mean()
+    if free_space_weight > 0 and own.weights is not None:
+        target = peer.depth[use].reshape(-1, 1)
+        in_front = own.sample_depths < target - free_space_margin_m
+        loss = loss + free_space_weight * (own.weights * in_front).sum(-1).mean()
+    return loss, int(use.sum())

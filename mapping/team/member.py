@@ -10,24 +10,26 @@ loss, eq. 8-11), ``parameter_message`` / ``ray_message`` for the peers the plan 
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Protocol, Sequence
 
 import numpy as np
 import torch
 
-from mapping.agent import ExportedInstance, InstanceFrame, MappingAgent, MappingConfig
+from mapping.agent import ExportedInstance, InstanceFrame, MappingAgent
 from mapping.data.frame import Frame
 from mapping.field import InstanceFieldBank, LiveRows
-from mapping.fusion.online import OnlineFusion, OnlineFusionConfig
+from mapping.fusion.online import OnlineFusion
 from mapping.perception.codebook import CodeBook, CodeBookEntry
 from mapping.perception.types import FrameSegmentation
 from mapping.pointcloud import voxel_downsample
-from mapping.team.arrival import ArrivalConfig, ArrivalDecision, InstanceView, align_arrivals
+from mapping.team.arrival import ArrivalDecision, InstanceView, align_arrivals
+from mapping.team.config import ConsistencyConfig, ExchangeConfig, TeamConfig  # noqa: F401 (re-exported)
 from mapping.team.consistency import (ConsistencyPairs, consensus_penalty, dinno_dual_update, dinno_penalty,
                                       metropolis_mix)
 from mapping.team.cross_rendering import rays_of_message, render_consistency_loss
-from mapping.team.messages import InstancePayload, ParameterMessage, RayMessage
+from mapping.team.global_map import GLOBAL_INSTANCE_ID, as_global_image, global_entry
+from mapping.team.messages import InstancePayload, ParameterMessage, PointCloudMessage, RayMessage
 
 
 class AgentStream(Protocol):
@@ -64,61 +66,6 @@ class Vocabulary:
         return self.names[int(np.argmax(self.features @ np.asarray(feature, np.float32)))]
 
 
-@dataclass(frozen=True)
-class ConsistencyConfig:
-    """How agents pull their maps together after an exchange."""
-
-    algorithm: str = "consensus"
-    """Parameter consistency (eq. 12): consensus (MACIM), dinno, dsgd or none."""
-    rho: float = 0.3
-    """Penalty weight (MACIM: 0.3; DiNNO: 0.3-0.5)."""
-    iterations: int = 5
-    """Consistency iterations per round (data loss + the terms below)."""
-    cross_rendering: bool = True
-    """Render consistency on the peers' shared rays (eq. 13)."""
-    render_weight: float = 1.0
-    """Weight of eq. 13 in the loss."""
-    rays_per_pose: int = 256
-    """Pixels replayed per shared pose."""
-    poses_per_message: int = 2
-    """Poses a ray message carries (the round's frames, evenly spread)."""
-    samples_per_box: int = 16
-    """Samples per crossed instance box when rendering shared rays."""
-
-
-@dataclass(frozen=True)
-class ExchangeConfig:
-    """What a parameter message carries."""
-
-    float16: bool = False
-    """Send network vectors and features as float16 (half the bytes)."""
-    changed_only: float | None = None
-    """Skip an instance whose parameters moved less than this (relative L2) since they last reached
-    that peer; None sends every instance every time."""
-    cloud_voxel_m: float = 0.02
-    """Voxel of the clouds sent for alignment."""
-    resend_cloud_growth: float = 2.0
-    """Send an instance's cloud again when it has grown this many times since it last went."""
-    forward_adopted: bool = False
-    """Also send instances this agent only holds from peers (never saw itself): with every link up
-    each peer has them from their owner already, so by default they are not forwarded."""
-
-
-@dataclass(frozen=True)
-class TeamConfig:
-    """Everything that shapes a team's learning."""
-
-    mapping: MappingConfig = field(default_factory=MappingConfig)
-    fusion: OnlineFusionConfig = field(default_factory=OnlineFusionConfig)
-    arrival: ArrivalConfig = field(default_factory=ArrivalConfig)
-    consistency: ConsistencyConfig = field(default_factory=ConsistencyConfig)
-    exchange: ExchangeConfig = field(default_factory=ExchangeConfig)
-    frames_per_round: int = 5
-    """Frames each agent reads per round (``fast``: one keyframe per round)."""
-    alignment: bool = True
-    """Align arrived instances (False: every arrived instance is adopted, the ablation)."""
-
-
 @dataclass
 class LocalReport:
     frames: list[int]
@@ -134,7 +81,8 @@ class TeamMember:
                  device: str = "auto"):
         self.index, self.stream, self.config, self.vocabulary = index, stream, config, vocabulary
         self.labels: dict[int, str] = {}
-        self.mapper = MappingAgent(config.mapping, is_structure=lambda iid: self.labels.get(iid) in vocabulary.structure,
+        self.mapper = MappingAgent(config.mapping, is_structure=lambda iid: config.global_map
+                                   or self.labels.get(iid) in vocabulary.structure,
                                    device=device, seed=seed, agent_index=index)
         self.fusion = OnlineFusion(config.fusion)
         self.next_frame = 0
@@ -176,6 +124,8 @@ class TeamMember:
         self.next_frame = stop
         frames, segs = [f for f, _ in read], [s for _, s in read]
         images = self.fusion.add_round(frames, segs)
+        if self.config.global_map:
+            images = [as_global_image(image) for image in images]
         for iid, inst in self.fusion.instances.items():
             self.labels.setdefault(iid, self.vocabulary.label(inst.caption_feature))
         keyframes = sum(self.mapper.ingest(frame, image) for frame, image in zip(frames, images))
@@ -196,7 +146,7 @@ class TeamMember:
             if ex.changed_only is not None and last is not None and iid in clouds and (
                     np.linalg.norm(inst.params - last) <= ex.changed_only * max(np.linalg.norm(last), 1e-12)):
                 continue
-            fused = self.fusion.instances.get(iid)
+            fused = None if self.config.global_map else self.fusion.instances.get(iid)
             cloud = None
             if fused is not None and len(fused.points) and (
                     iid not in clouds or len(fused.points) >= ex.resend_cloud_growth * clouds[iid]):
@@ -211,6 +161,14 @@ class TeamMember:
                 entry.confidence, cloud))
             sent[iid] = inst.params
         return ParameterMessage(self.index, receiver, round_index, payloads, degree)
+
+    def point_cloud_message(self, receiver: int, round_index: int) -> PointCloudMessage:
+        """Every point this agent has observed so far (its fused instances' clouds), down-sampled."""
+        clouds = [inst.points for inst in self.fusion.instances.values() if len(inst.points)]
+        points = np.concatenate(clouds) if clouds else np.zeros((0, 3))
+        voxel = self.config.exchange.cloud_voxel_m
+        points = voxel_downsample(points, voxel) if len(points) else points
+        return PointCloudMessage(self.index, receiver, round_index, np.asarray(points, np.float32))
 
     def ray_message(self, receiver: int, round_index: int, seed: int) -> RayMessage | None:
         """The poses of this round's frames (at most ``poses_per_message``) and a pixel seed."""
@@ -236,6 +194,8 @@ class TeamMember:
         self.held_round[peer] = message.round
         self.peer_degrees[peer] = message.degree
         counts = {"adopted": 0, "matched": 0, "merged": 0}
+        if self.config.global_map:
+            return {**counts, **self._receive_global(message), "refit": 0}
         new = {i.instance_id: i for i in message.instances if i.cloud is not None and i.instance_id not in matches}
         if self.config.alignment:
             own = {iid: InstanceView(inst.points, inst.caption_feature, inst.confidence)
@@ -274,6 +234,22 @@ class TeamMember:
         if frames:
             self.mapper.set_frames(frames)  # one batched refit per bank
         counts["refit"] = len(frames)
+        return counts
+
+    def _receive_global(self, message: ParameterMessage) -> dict:
+        """Global maps share one frame (the scene box): the peer's network is this agent's global
+        instance, matched at once, or adopted when this agent has not mapped anything yet."""
+        matches = self.matches.setdefault(message.sender, {})
+        counts = {"adopted": 0, "matched": 0}
+        for inst in message.instances:
+            if inst.instance_id in matches:
+                continue
+            if GLOBAL_INSTANCE_ID not in self.mapper.slots:
+                self.mapper.adopt_instance(GLOBAL_INSTANCE_ID, _exported(inst))
+                counts["adopted"] += 1
+            else:
+                counts["matched"] += 1
+            matches[inst.instance_id] = GLOBAL_INSTANCE_ID
         return counts
 
     def _merge(self, piece: int, target: int) -> None:
@@ -355,7 +331,8 @@ class TeamMember:
             used = 0
             own_fields = self._own_fields()
             for sender, bundle in zip(senders, rays):
-                loss, n = render_consistency_loss(own_fields, self._peer_fields(sender), bundle, c.samples_per_box)
+                loss, n = render_consistency_loss(own_fields, self._peer_fields(sender), bundle, c.samples_per_box,
+                                                  free_space_weight=c.free_space_weight)
                 render, used = render + loss, used + n
             terms["render"], terms["render_rays"] = float(render.detach()), used
             return total + c.render_weight * render
@@ -427,6 +404,8 @@ class TeamMember:
     # ---- outputs ---------------------------------------------------------------------------------
     def entry(self, iid: int) -> CodeBookEntry:
         """The instance's code-book entry (a more confident peer's meaning when alignment gave one)."""
+        if self.config.global_map:
+            return global_entry(self.vocabulary.features.shape[1])
         inst = self.fusion.instances.get(iid)
         if iid in self.meaning:
             caption, feature, confidence = self.meaning[iid]
@@ -436,6 +415,9 @@ class TeamMember:
         return CodeBookEntry(inst.caption, inst.caption_feature, None, inst.confidence)
 
     def codebook(self) -> CodeBook:
+        """Instance id -> entry of the live instances (empty for a global map: it has no instances)."""
+        if self.config.global_map:
+            return CodeBook({})
         return CodeBook({iid: self.entry(iid) for iid in self.mapper.live_ids() if iid in self.fusion.instances})
 
 

@@ -1,12 +1,15 @@
 """What agents send each other, and its real serialised form (bytes are counted as ``len(to_bytes())``).
 
-Two kinds, as the paper's exchange (sec. III-D):
+Two kinds, as the paper's exchange (sec. III-D), and a third for the transmission baseline:
 - ``ParameterMessage``: per instance, its network vector, box, frame and code-book entry, and, the
   first time that instance goes to that peer (or after its cloud grew), its down-sampled point cloud
   for the Cross-Agent Instance Alignment.
 - ``RayMessage``: the camera poses of the sender's current frames and a sampling seed the receiver
   replays to get the same pixels (never depth: the receiver renders the peer's depth itself with the
   peer's parameters, eq. 13).
+- ``PointCloudMessage``: the down-sampled points the sender has observed so far: what point-cloud
+  sharing (the paper's Table VI baseline) would send instead of parameters; it trains nothing here,
+  it exists so that its bytes are counted the same way as the others'.
 
 Wire format (one function pair for both kinds): ``b"OMMSG"``, a version byte, a uint32 header length,
 a UTF-8 JSON header (scalars, and for each array its name, dtype, shape and offset), then the arrays'
@@ -87,7 +90,18 @@ class RayMessage:
     kind = "rays"
 
 
-Message = ParameterMessage | RayMessage
+@dataclass
+class PointCloudMessage:
+    """The sender's observed points so far, (P, 3) float32, down-sampled (point-cloud sharing)."""
+
+    sender: int
+    receiver: int
+    round: int
+    points: np.ndarray
+    kind = "points"
+
+
+Message = ParameterMessage | RayMessage | PointCloudMessage
 
 
 def replay_pixels(message: RayMessage) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -141,6 +155,8 @@ def _unpack(data: bytes) -> tuple[str, dict, dict[str, np.ndarray]]:
 def to_bytes(message: Message) -> bytes:
     """The message's serialised form (what a radio would carry)."""
     base = {"sender": message.sender, "receiver": message.receiver, "round": message.round}
+    if isinstance(message, PointCloudMessage):
+        return _pack("points", base, {"points": np.asarray(message.points, np.float32)})
     if isinstance(message, RayMessage):
         return _pack("rays", {**base, "intrinsics": list(message.intrinsics), "seed": int(message.seed),
                               "rays_per_pose": int(message.rays_per_pose)},
@@ -168,6 +184,8 @@ def from_bytes(data: bytes) -> Message:
             fx, fy, cx, cy, w, h = s["intrinsics"]
             return RayMessage(s["sender"], s["receiver"], s["round"], a["poses"], (fx, fy, cx, cy, int(w), int(h)),
                               s["seed"], s["rays_per_pose"])
+        if kind == "points":
+            return PointCloudMessage(s["sender"], s["receiver"], s["round"], a["points"])
         if kind != "params":
             raise MessageError(f"unknown message kind {kind!r}")
         instances = []

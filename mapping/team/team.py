@@ -176,7 +176,9 @@ class Team:
         for i in range(n):
             for j in range(n):
                 messages = []
-                if plan.send_params[i, j]:
+                if plan.send_params[i, j] and self.config.exchange.point_clouds:
+                    messages.append(self.members[i].point_cloud_message(j, t))
+                elif plan.send_params[i, j]:
                     messages.append(self.members[i].parameter_message(j, t, int(degree[i])))
                 if plan.share_rays[i, j]:
                     ray = self.members[i].ray_message(j, t, zlib.crc32(f"rays-{self.seed}-{t}-{i}-{j}".encode()))
@@ -186,7 +188,7 @@ class Team:
                     d = self.channel.transmit(message)
                     deliveries.append({"sender": i, "receiver": j, "kind": d.kind, "status": d.status,
                                        "bytes": d.bytes})
-                    if d.status == DELIVERED:
+                    if d.status == DELIVERED and d.kind != "points":  # clouds are counted, not learned from
                         (params_in if d.kind == "params" else rays_in)[j].append(d.message)
                         if d.kind != "params":
                             self.members[j].note_rays(d.message)

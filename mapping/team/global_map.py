@@ -1,0 +1,49 @@
+"""The global-map mode of a team member: one network for the whole scene instead of one per instance.
+
+The paper's global baselines (Di-NeRF*, MACIM, and OpenMulti on a global map, Tables I and IV) differ
+from the instance-level map in structure only, so they run through the same agent, channel and
+consistency code: every pixel any mask covers becomes one instance, ``GLOBAL_INSTANCE_ID``, whose
+frame is the scene's box (``MappingConfig.global_frame``, fixed, so every agent's network is a vector
+of the same function and eq. 12 pairs them without any alignment), in the structure bank with a wider
+network (``MappingConfig.structure_width``) and as many rays per step as buy the instance-level map's
+compute (``global_rays_for``). Fusion still runs (its instances are what the front end saw), but the
+mapper never sees its ids, so the global map carries no per-instance semantics.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from mapping.field import mlp_flops_per_point
+from mapping.perception.codebook import CodeBookEntry
+
+GLOBAL_INSTANCE_ID = 1
+"""The one instance of a global map (0 means "no instance" in every instance image)."""
+GLOBAL_CAPTION = "the whole scene"
+
+
+def as_global_image(instance_image: np.ndarray) -> np.ndarray:
+    """Every labelled pixel becomes the global instance (unlabelled pixels stay 0)."""
+    return np.where(np.asarray(instance_image) > 0, GLOBAL_INSTANCE_ID, 0).astype(np.int32)
+
+
+def global_entry(feature_dim: int) -> CodeBookEntry:
+    """The code-book entry a global map sends with its network (no meaning: a zero feature)."""
+    return CodeBookEntry(GLOBAL_CAPTION, np.zeros(feature_dim, np.float32), None, 1.0)
+
+
+def scene_frame(size_m: tuple[float, float, float], margin_m: float = 0.1) -> tuple[float, float, float, float]:
+    """(centre x, y, z, half-size) of the isotropic frame holding the room box [0, size] (plus a margin)."""
+    size = np.asarray(size_m, np.float64)
+    centre = size / 2.0
+    return float(centre[0]), float(centre[1]), float(centre[2]), float(size.max() / 2.0 + margin_m)
+
+
+def global_rays_for(objects: int, structures: int, rays_per_object: int, rays_per_structure: int,
+                    object_width: int, structure_width: int, global_width: int) -> int:
+    """Rays per step that give a ``global_width`` network the per-step MLP FLOPs of an instance-level
+    map with ``objects`` width-``object_width`` and ``structures`` width-``structure_width`` networks
+    (same samples per ray): the global baselines get the same effort, so the comparison is structure."""
+    flops = (objects * rays_per_object * mlp_flops_per_point(object_width)
+             + structures * rays_per_structure * mlp_flops_per_point(structure_width))
+    return max(1, int(round(flops / mlp_flops_per_point(global_width))))

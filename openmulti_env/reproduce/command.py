@@ -1,0 +1,46 @@
+"""``openmulti reproduce``: run the runs of one table (or ``all``) and write its files.
+
+Runs shared between tables (``openmulti`` is in five of them) are made once: every table reads the
+same ``OUT/rows/<key>.json``.
+"""
+
+from __future__ import annotations
+
+import platform
+import time
+from pathlib import Path
+
+from openmulti_env.reproduce.runner import check_scenes, run_table
+from openmulti_env.reproduce.tables import TABLES, table_runs
+from openmulti_env.reproduce.writers import write_table
+
+
+def reproduce(table: str, scenes: list[str], seeds: list[int], preset: str, out: str | Path, agents: int = 4,
+              threads: int | None = 1, device: str = "cpu", three_cullings: bool = True,
+              max_rounds: int | None = None, progress: bool = True, run_fn=None) -> dict[str, list[dict]]:
+    """Run ``table`` (one of ``TABLES`` or ``all``) and write ``OUT/T.json``, ``.md`` and ``.png``.
+
+    Returns the rows of each table written. Unknown table or scene names raise ValueError listing the
+    known ones, before any run starts.
+    """
+    names = list(TABLES) if table == "all" else [table]
+    specs = {name: table_runs(name, scenes, seeds, agents) for name in names}  # checks the table names
+    check_scenes(scenes)
+    out = Path(out)
+    start = time.perf_counter()
+    written = {}
+    for name in names:
+        rows = run_table(specs[name], preset, out, threads=threads, device=device, three_cullings=three_cullings,
+                         max_rounds=max_rounds, progress=progress, run_fn=run_fn)
+        notes = (f"Preset `{preset}`, {agents} agents, machine: {platform.machine()} {platform.processor() or ''}"
+                 f" ({_cores()} cores), torch threads {threads}; cumulative wall time of this command "
+                 f"{time.perf_counter() - start:.0f} s (runs made earlier are reused).")
+        write_table(out, name, rows, notes)
+        written[name] = rows
+    return written
+
+
+def _cores() -> int:
+    import os  # noqa: PLC0415
+
+    return os.cpu_count() or 1

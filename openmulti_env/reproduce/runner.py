@@ -1,0 +1,123 @@
+"""Running a table: one ``openmulti_env.run.run`` per ``RunSpec``, keyed, atomic and resumable.
+
+Each run lives in ``OUT/runs/<key>/`` (``run`` checkpoints its team there every few rounds and resumes
+from it) and, once finished, leaves its row in ``OUT/rows/<key>.json``, written atomically together
+with the settings that made it. Started again, ``reproduce`` skips every run whose row file holds the
+same settings, resumes a run that was interrupted (its checkpoint), and redoes one whose row file is
+unreadable or was made with other settings. A tqdm bar counts the runs.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+from typing import Callable
+
+from tqdm import tqdm
+
+from openmulti_env.reproduce.methods import METHODS
+from openmulti_env.reproduce.tables import RunSpec
+from openmulti_env.results import write_json_atomic
+
+ROW_KEYS = ("method", "scene", "seed", "agents", "success_rate", "acc_cm", "comp_cm", "comp_ratio",
+            "bytes_per_round", "time_per_round_s")
+
+
+def check_scenes(scenes: list[str]) -> None:
+    """ValueError naming an unknown scene and listing the known ones (presets, random:SEED, a manifest)."""
+    from openmulti_env.world.presets import list_presets  # noqa: PLC0415
+
+    known = list_presets()
+    for scene in scenes:
+        if scene in known or scene.startswith("random:") or Path(scene).is_file():
+            continue
+        raise ValueError(f"unknown scene {scene!r}; known scenes: {', '.join(known)}, random:SEED, "
+                         "or the path of a scene manifest")
+
+
+def run_settings(spec: RunSpec, preset: str, three_cullings: bool, max_rounds: int | None) -> dict:
+    """Everything that decides a run's row (its key on disk is derived from the same)."""
+    return {"method": spec.method, "scene": spec.scene, "seed": spec.seed, "agents": spec.agents,
+            "success_rate": spec.success_rate, "preset": preset, "policy": spec.policy,
+            "options": METHODS[spec.method].run_options(), "three_cullings": three_cullings, "max_rounds": max_rounds}
+
+
+def row_from_metrics(spec: RunSpec, metrics: dict) -> dict:
+    """One table row from a run's ``metrics.json``: the means over agents, bytes and time per round."""
+    mean, n = metrics["mean"], max(metrics["config"]["agents"], 1)
+    rounds = max(metrics["rounds"], 1)
+    per_round = [b / n for b in metrics["bytes_per_round"]]
+    is_global = METHODS[spec.method].global_map
+    row = {"method": spec.method, "scene": spec.scene, "seed": spec.seed, "agents": spec.agents,
+           "success_rate": spec.success_rate,
+           **{k: v for k, v in mean.items() if k not in ("f_miou", "f_macc")},
+           "f_miou": None if is_global else mean.get("f_miou"), "f_macc": None if is_global else mean.get("f_macc"),
+           "team_f_miou": None if is_global else metrics["team"]["f_miou"],
+           "team_f_macc": None if is_global else metrics["team"]["f_macc"],
+           "bytes_per_round": sum(per_round) / rounds,
+           "bytes_per_round_series": per_round,
+           "time_per_round_s": metrics["fleet_s"] / rounds,
+           "fleet_s": metrics["fleet_s"], "compute_s_max": max(metrics["compute_s"].values(), default=0.0),
+           "instances": sum(a["instances"] for a in metrics["agents"].values()) / n,
+           "rounds": metrics["rounds"], "wall_s": metrics["wall_s"], "map": metrics.get("map")}
+    return row
+
+
+def load_row(path: Path, settings: dict) -> dict | None:
+    """The finished row at ``path`` if it was made with ``settings`` (None: missing, half-written or stale)."""
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None
+    if not isinstance(data, dict) or data.get("settings") != settings or "row" not in data:
+        return None
+    return data["row"]
+
+
+def run_table(specs: list[RunSpec], preset: str, out: Path, threads: int | None = 1, device: str = "cpu",
+              three_cullings: bool = True, max_rounds: int | None = None, progress: bool = True,
+              run_fn: Callable[..., dict] | None = None, keep_files: bool = False) -> list[dict]:
+    """Run (or reuse) every spec; returns their rows in the specs' order.
+
+    Args:
+        keep_files: keep each finished run's team checkpoint and meshes (by default they are deleted
+            once its row is written: a ``fast`` team checkpoint is ~0.3 GB, the meshes ~0.2 GB, and a
+            table needs tens of runs; ``metrics.json`` and ``rounds.json`` stay).
+        run_fn: the run function (default ``openmulti_env.run.run``; tests pass a stand-in).
+    """
+    if run_fn is None:
+        from openmulti_env.run import run as run_fn  # noqa: PLC0415
+    check_scenes(sorted({s.scene for s in specs}))
+    rows, todo = [], []
+    for spec in specs:
+        settings = run_settings(spec, preset, three_cullings, max_rounds)
+        rows.append(load_row(out / "rows" / f"{spec.key(preset)}.json", settings))
+        if rows[-1] is None:
+            todo.append(spec)
+    with tqdm(total=len(specs), initial=len(specs) - len(todo), desc="runs", unit="run", disable=not progress) as bar:
+        for i, spec in enumerate(specs):
+            if rows[i] is not None:
+                continue
+            key = spec.key(preset)
+            bar.set_postfix_str(key)
+            start = time.perf_counter()
+            metrics = run_fn(spec.scene, spec.agents, spec.policy, preset, spec.seed, out / "runs" / key,
+                             device=device, threads=threads, progress=False, max_rounds=max_rounds,
+                             three_cullings=three_cullings, plots=False,
+                             **{k: v for k, v in METHODS[spec.method].run_options().items() if k != "policy"})
+            row = {**row_from_metrics(spec, metrics), "run_s": time.perf_counter() - start, "preset": preset}
+            write_json_atomic(out / "rows" / f"{key}.json",
+                              {"settings": run_settings(spec, preset, three_cullings, max_rounds), "row": row})
+            rows[i] = row
+            if not keep_files:
+                _drop_bulky_files(out / "runs" / key)
+            bar.update(1)
+    return rows
+
+
+def _drop_bulky_files(run_dir: Path) -> None:
+    """Delete a finished run's checkpoints and meshes (its metrics and round reports stay)."""
+    for pattern in ("checkpoints/*.pt", "meshes/*.ply"):
+        for path in run_dir.glob(pattern):
+            path.unlink(missing_ok=True)

@@ -1,0 +1,156 @@
+"""The experiments: every method runs on the tiny world and gives a row; writers; resume; bad names;
+each culling on a hand-made mesh."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import trimesh
+
+from mapping.data.frame import Intrinsics
+from mapping.evaluate.culling import cull_to_frustums
+from openmulti_env.reproduce.command import reproduce
+from openmulti_env.reproduce.methods import METHODS, TABLE_I_METHODS, get_method
+from openmulti_env.reproduce.runner import run_table
+from openmulti_env.reproduce.tables import RunSpec, table_runs
+from openmulti_env.reproduce.writers import markdown_table, mean_sd, write_table
+
+
+def test_design_method_names_are_all_presets():
+    assert set(TABLE_I_METHODS) == {"single", "dsgd_instance", "dinno_instance", "dinerf_global", "macim_global",
+                                    "openmulti_no_cross", "openmulti_global", "openmulti"}
+    assert set(TABLE_I_METHODS) <= set(METHODS)
+    assert get_method("dinerf_global").global_map and get_method("dinerf_global").consistency == "dinno"
+    assert not get_method("openmulti_no_cross").cross_rendering and get_method("openmulti").cross_rendering
+
+
+def test_every_method_runs_two_rounds_on_the_tiny_world_and_writes_a_row(tmp_path):
+    specs = [RunSpec(m, "tiny", 0, METHODS[m].agents or 2) for m in METHODS]
+    rows = run_table(specs, "tiny", tmp_path, threads=1, three_cullings=False, max_rounds=2, progress=False)
+    assert [r["method"] for r in rows] == list(METHODS)
+    for row in rows:
+        assert row["rounds"] == 2 and row["comp_ratio"] >= 0 and row["time_per_round_s"] > 0
+        assert row["acc_cm"] is None or row["acc_cm"] > 0
+    by = {r["method"]: r for r in rows}
+    assert by["single"]["bytes_per_round"] == 0 and by["single_agent"]["agents"] == 1
+    assert by["dinerf_global"]["map"]["kind"] == "global" and by["dinerf_global"]["f_miou"] is None
+    assert by["openmulti"]["map"]["kind"] == "instance" and by["openmulti"]["f_miou"] is not None
+    # point clouds grow with the explored area; a global map sends one network of a fixed size
+    clouds, single_net = by["pointcloud_sharing"]["bytes_per_round_series"], by["macim_global"]["bytes_per_round_series"]
+    assert clouds[1] > clouds[0] > 0 and single_net[0] == single_net[1] > 0
+    assert all((tmp_path / "rows" / f"{s.key('tiny')}.json").is_file() for s in specs)
+
+
+def _fake_run(calls):
+    def run(scene, agents, policy, preset, seed, out, **kwargs):
+        calls.append((scene, policy, seed, kwargs.get("global_map")))
+        return {"mean": {"acc_cm": 2.0 + seed, "comp_cm": 3.0, "comp_ratio": 80.0 - 10 * kwargs["global_map"],
+                         "f_miou": 50.0, "f_macc": 60.0},
+                "team": {"f_miou": 55.0, "f_macc": 65.0}, "config": {"agents": agents}, "rounds": 4,
+                "bytes_per_round": [4000, 4000, 8000, 8000], "fleet_s": 8.0, "compute_s": {"agent_0": 3.0},
+                "agents": {"agent_0": {"instances": 5}}, "wall_s": 1.0, "map": {"kind": "x"}}
+    return run
+
+
+def test_resume_skips_finished_runs_and_redoes_a_half_written_one(tmp_path):
+    specs = table_runs("comm-failure", ["tiny"], [0, 1])
+    calls = []
+    run_table(specs, "tiny", tmp_path, run_fn=_fake_run(calls), progress=False)
+    assert len(calls) == len(specs) == 2 * 2 * 4
+    calls.clear()
+    run_table(specs, "tiny", tmp_path, run_fn=_fake_run(calls), progress=False)
+    assert calls == []
+    half = tmp_path / "rows" / f"{specs[3].key('tiny')}.json"
+    half.write_text(half.read_text()[:40])  # interrupted while writing
+    rows = run_table(specs, "tiny", tmp_path, run_fn=_fake_run(calls), progress=False)
+    assert len(calls) == 1 and calls[0][1] == specs[3].policy and rows[3]["method"] == specs[3].method
+    calls.clear()
+    run_table(specs, "fast", tmp_path, run_fn=_fake_run(calls), progress=False)  # other settings: runs again
+    assert len(calls) == len(specs)
+
+
+def _rows():
+    rows = []
+    for method, cr in (("openmulti", 80.0), ("dinerf_global", 60.0)):
+        for seed in (0, 1, 2):
+            rows.append({"method": method, "scene": "room0", "seed": seed, "agents": 4, "success_rate": 1.0,
+                         "acc_cm": 2.0 + seed, "comp_cm": 3.0, "comp_ratio": cr + seed, "acc_cm_nice": 1.5,
+                         "comp_cm_nice": 3.1, "comp_ratio_nice": cr, "acc_cm_unculled": None, "comp_cm_unculled": 4.0,
+                         "comp_ratio_unculled": cr, "bytes_per_round": 2e6, "time_per_round_s": 5.0,
+                         "bytes_per_round_series": [1e6, 2e6, 3e6], "f_miou": None, "f_macc": None})
+    return rows
+
+
+def test_json_and_markdown_writers_on_a_hand_made_row_set(tmp_path):
+    rows = _rows()
+    paths = write_table(tmp_path, "geometric", rows, notes="hand-made")
+    data = json.loads(paths["json"].read_text())
+    assert data == {"table": "geometric", "rows": rows}
+    md = paths["md"].read_text()
+    line = next(l for l in md.splitlines() if l.startswith("| openmulti |"))
+    cells = [c.strip() for c in line.strip("|").split("|")]
+    assert cells[3] == "3"  # n runs
+    assert cells[4] == "3.00 ± 1.00"  # acc over seeds 2, 3, 4
+    assert cells[6] == "81.00 ± 1.00"
+    assert cells[-1] == "2.47 / 3.52 / 81.52"  # the paper's Table I
+    assert "| - |" in line or " - " in line  # all-None unculled accuracy
+    assert paths["png"].stat().st_size > 1000
+    assert "hand-made" in md
+    m, sd = mean_sd([1.0, None, 3.0])
+    assert m == 2.0 and sd == pytest.approx(np.sqrt(2.0))
+    assert "comp_ratio" in markdown_table("comm-failure", rows)
+    write_table(tmp_path, "transmission", rows)
+    assert "| openmulti | 100 % | 4 | 3 | 2.00 ± 0.00 | 1.00 ± 0.00 | 3.00 ± 0.00 |" in (tmp_path / "transmission.md").read_text()
+
+
+def test_unknown_names_get_a_clear_error_listing_the_known_ones(tmp_path):
+    with pytest.raises(ValueError, match="unknown table 'table9'.*geometric.*comm-failure"):
+        reproduce("table9", ["room0"], [0], "tiny", tmp_path)
+    with pytest.raises(ValueError, match="unknown method 'vmap'.*openmulti_no_cross"):
+        get_method("vmap")
+    with pytest.raises(ValueError, match="unknown scene 'kitchen9'.*room0.*office4"):
+        reproduce("geometric", ["kitchen9"], [0], "tiny", tmp_path, run_fn=_fake_run([]))
+    from openmulti_env.cli import main
+
+    assert main(["reproduce", "--table", "tables", "--out", str(tmp_path)]) == 2
+
+
+# ---- each culling on a hand-made mesh -------------------------------------------------------------
+def _two_walls():
+    """A front wall at z = 2 and a second wall behind it at z = 3 (both 2 x 2 m, facing -z), and a
+    square off to the side at x = 5 no camera looks at."""
+    def square(cx, z, size=2.0):
+        h = size / 2
+        v = np.array([[cx - h, -h, z], [cx + h, -h, z], [cx + h, h, z], [cx - h, h, z]])
+        return trimesh.Trimesh(v, [[0, 2, 1], [0, 3, 2]], process=False)
+    return trimesh.util.concatenate([square(0.0, 2.0), square(0.0, 3.0, 1.0), square(5.0, 2.0)])
+
+
+def test_nice_slam_culling_keeps_faces_in_a_frustum_and_not_behind_the_observed_depth():
+    mesh = _two_walls()
+    k = Intrinsics(width=64, height=64, fx=32.0, fy=32.0, cx=31.5, cy=31.5)  # 90 degrees
+    pose = np.eye(4)[None]  # at the origin, looking along +z
+    depth = np.full((1, 64, 64), 2.0)  # the front wall is what the camera saw
+    frustum_only = cull_to_frustums(mesh, pose, k)
+    assert len(frustum_only.faces) == 4  # both walls in view, the side square outside
+    culled = cull_to_frustums(mesh, pose, k, depth)
+    assert len(culled.faces) == 2 and np.allclose(culled.vertices[:, 2], 2.0)  # the hidden wall is gone
+    assert len(cull_to_frustums(mesh, pose, k, depth, depth_slack_m=1.5).faces) == 4
+
+
+def test_free_space_culling_and_unculled_scoring_on_a_hand_made_box():
+    from openmulti_env.scoring import score_three_ways
+    from openmulti_env.world.visibility import cull_to_viewpoints
+
+    gt = trimesh.creation.box(extents=(1.0, 1.0, 1.0))
+    inner = trimesh.creation.box(extents=(0.5, 0.5, 0.5))  # hallucinated inside the box: no viewpoint sees it
+    rec = trimesh.util.concatenate([gt.subdivide().subdivide(), inner])
+    viewpoints = np.array([[3.0, 0.0, 0.0], [-3.0, 0.0, 0.0], [0.0, 3.0, 0.0], [0.0, -3.0, 0.0],
+                           [0.0, 0.0, 3.0], [0.0, 0.0, -3.0]])
+    culled = cull_to_viewpoints(rec, viewpoints, group_m=None)
+    assert np.abs(culled.vertices).max(axis=1).min() > 0.49  # only the outer box survives
+    scores = score_three_ways(rec, gt, viewpoints, None, seed=0)
+    assert scores["acc_cm"] < 1.0 < scores["acc_cm_unculled"]  # the inner box costs accuracy unculled only
+    assert scores["comp_ratio"] == pytest.approx(100.0) and "acc_cm_nice" not in scores
