@@ -307,8 +307,13 @@ class OpenMultiParallelEnv(ParallelEnv, EzPickle):
         return np.concatenate([self._observe(i) for i in range(len(self.possible_agents))], axis=-1)
 
     # ---- pictures ----------------------------------------------------------------------------------
-    def render(self):
-        """``rgb_array``: (192, W, 3) uint8, the agents' maps then the team panel; None otherwise."""
+    def render(self, mode: str | None = None):
+        """``rgb_array``: (192, W, 3) uint8, the agents' maps then the team panel; None otherwise.
+
+        ``mode`` is for clients that pass one (RLlib's ``ParallelPettingZooEnv`` calls ``render(mode)``):
+        ``"rgb_array"`` draws whatever the env was made with."""
+        if mode == "rgb_array" and self.render_mode is None:
+            self.render_mode = "rgb_array"
         if self.render_mode is None:
             warnings.warn("render() called with render_mode=None; make the env with render_mode='rgb_array'",
                           stacklevel=2)

@@ -168,6 +168,9 @@ def test_render_shows_every_agent_and_the_team_panel(cache):
     assert img.dtype == np.uint8 and img.ndim == 3 and img.shape[2] == 3
     assert img.shape[0] == 192 and img.shape[1] == 4 * 192 + 3 * 4
     assert (img[:, -192:] == (255, 225, 25)).all(-1).any()  # links used both ways this step are drawn
+    plain = parallel_env(preset="tiny", cache_dir=cache)
+    plain.reset(seed=0)
+    assert plain.render("rgb_array").shape[2] == 3  # RLlib passes the mode
 
 
 def test_world_cache_corrupt_entry_is_rebuilt_with_a_warning(tmp_path):
