@@ -44,7 +44,7 @@ class TopDownGrid:
         centre = (lo + hi) / 2
         return TopDownGrid(centre - cell * size / 2, cell, size)
 
-    def cells(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def cells(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Row and column indices of (M, 2) points, and which of them fall on the grid."""
         ij = np.floor((np.asarray(xy, float)[:, :2] - self.origin_xy) / self.cell_m).astype(np.int64)
         inside = np.all((ij >= 0) & (ij < self.size), axis=1)
@@ -102,14 +102,7 @@ class AgentObservation:
     def add_frames(self, frames) -> None:
         """Mark the cells the frames' depth hits and the camera positions (the agent's own data)."""
         for frame in frames:
-            depth = frame.depth[::DEPTH_STRIDE, ::DEPTH_STRIDE]
-            k = frame.intrinsics
-            v, u = np.nonzero(depth > 0)
-            z = depth[v, u]
-            x = (u * DEPTH_STRIDE - k.cx) / k.fx * z
-            y = (v * DEPTH_STRIDE - k.cy) / k.fy * z
-            world = np.stack([x, y, z], 1) @ frame.pose[:3, :3].T + frame.pose[:3, 3]
-            self.observed.reshape(-1)[self.grid.flat(world)] = 255
+            self.observed.reshape(-1)[self.grid.flat(frame.backproject(stride=DEPTH_STRIDE))] = 255
             self.path.reshape(-1)[self.grid.flat(frame.pose[None, :3, 3])] = 128
 
     def assemble(self, map_height: np.ndarray, map_coverage: np.ndarray, received: np.ndarray,

@@ -145,17 +145,17 @@ def _read(entry: Path, scene: str, seed: int, config: WorldConfig, scene_object=
 
 def _manifest_digest(path: Path) -> str:
     """The manifest's bytes and those of every mesh it names (a changed mesh is a new world)."""
+    import yaml  # noqa: PLC0415
+
     h = hashlib.sha256(path.read_bytes())
     try:
-        import yaml  # noqa: PLC0415
-
         spec = yaml.safe_load(path.read_text())
         for obj in (spec or {}).get("objects", []) or []:
             mesh = path.parent / str(obj.get("mesh", ""))
             if mesh.is_file():
                 h.update(mesh.read_bytes())
-    except Exception:  # noqa: BLE001 - a manifest the loader will reject: its bytes are key enough
-        pass
+    except (OSError, ValueError, AttributeError, TypeError, yaml.YAMLError):
+        pass  # a manifest the loader will reject (and name the problem): its bytes are key enough
     return h.hexdigest()
 
 

@@ -29,6 +29,19 @@ def _episode(e, seed: int, action_seed: int):
     return trace
 
 
+def _assert_same_episode(a_trace, b_trace):
+    """Every returned dict of every step equal, per agent (arrays bit for bit)."""
+    assert len(a_trace) == len(b_trace)
+    for a, b in zip(a_trace, b_trace):
+        for x, y in zip(a, b):
+            assert x.keys() == y.keys()
+            for agent in x:
+                if isinstance(x[agent], np.ndarray):
+                    np.testing.assert_array_equal(x[agent], y[agent])
+                else:
+                    assert x[agent] == y[agent]
+
+
 def test_same_seed_same_actions_same_episode_cold_and_warm(tmp_path):
     cold = parallel_env(preset="tiny", cache_dir=str(tmp_path))
     first = _episode(cold, seed=11, action_seed=2)
@@ -38,15 +51,8 @@ def test_same_seed_same_actions_same_episode_cold_and_warm(tmp_path):
     assert warm.last_cache_hit is True
     third = _episode(warm, seed=11, action_seed=2)  # the same env again: frames from its render cache
     assert len(first) == len(second) == len(third) == 9  # reset + 16 frames / 2 per step
-    for a, b, c in zip(first, second, third):
-        for x, y, z in zip(a, b, c):
-            assert x.keys() == y.keys() == z.keys()
-            for agent in x:
-                if isinstance(x[agent], np.ndarray):
-                    np.testing.assert_array_equal(x[agent], y[agent])
-                    np.testing.assert_array_equal(x[agent], z[agent])
-                else:
-                    assert x[agent] == y[agent] == z[agent]
+    _assert_same_episode(first, second)
+    _assert_same_episode(first, third)
 
 
 def test_another_episode_seed_gives_another_episode(cache):
@@ -215,13 +221,7 @@ def test_world_cache_is_trimmed_to_its_cap(tmp_path):
 def test_agent_worker_threads_do_not_change_the_episode(cache):
     one = _episode(parallel_env(preset="tiny", num_agents=3, cache_dir=cache, agent_workers=1), seed=8, action_seed=3)
     two = _episode(parallel_env(preset="tiny", num_agents=3, cache_dir=cache, agent_workers=2), seed=8, action_seed=3)
-    for a, b in zip(one, two):
-        for x, y in zip(a, b):
-            for agent in x:
-                if isinstance(x[agent], np.ndarray):
-                    np.testing.assert_array_equal(x[agent], y[agent])
-                else:
-                    assert x[agent] == y[agent]
+    _assert_same_episode(one, two)
 
 
 def test_world_cache_key_follows_a_manifests_meshes(tmp_path):
