@@ -29,13 +29,13 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from mapping.alignment import id_consistency, id_purity
+from mapping.alignment import ALIGNMENT_MODES, align_team, id_consistency, id_purity, labelled_points
+from mapping.evaluate.semantic import score_semantics
 from mapping.perception import shared_text_encoder
 from mapping.perception.errors import SegmentationErrorConfig
 from openmulti_env.run_presets import world_config
 from openmulti_env.results import write_json_atomic
-from openmulti_env.team_perception import (ALIGNMENT_MODES, FrontEndConfig, align_team, category_vocabulary,
-                                           labelled_points, perceive_team, score_semantics, semantic_ground_truth)
+from openmulti_env.team_perception import FrontEndConfig, category_vocabulary, perceive_team, semantic_ground_truth
 from openmulti_env.world import World
 
 PRESETS = ("room0", "room1", "room2", "office0", "office1", "office2", "office3", "office4")

@@ -6,9 +6,10 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
+from mapping.alignment import align_team, labelled_points
+from mapping.evaluate.semantic import score_semantics
 from mapping.perception.errors import SegmentationErrorConfig
-from openmulti_env.team_perception import (FrontEndConfig, align_team, category_vocabulary, labelled_points,
-                                           perceive_team, score_semantics, semantic_ground_truth)
+from openmulti_env.team_perception import FrontEndConfig, category_vocabulary, perceive_team, semantic_ground_truth
 
 
 @pytest.fixture(scope="module")

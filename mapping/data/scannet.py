@@ -20,7 +20,6 @@ import numpy as np
 from mapping.data._io import (
     DatasetError,
     DatasetWarning,
-    as_intrinsics,
     check_pose,
     image_size,
     intrinsics_for_images,

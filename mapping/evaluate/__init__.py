@@ -15,7 +15,7 @@ _WHERE = {
                 "instance_color", "load_scene_mesh", "merge_instance_meshes"),
     "retrieval": ("RetrievalHit", "score_instances"),
     "semantic": ("ClassRow", "SemanticMetrics", "ground_truth_semantic_points", "per_class_table",
-                 "semantic_metrics", "zero_shot_labels"),
+                 "score_semantics", "semantic_metrics", "zero_shot_labels"),
 }
 _MODULE_OF = {name: module for module, names in _WHERE.items() for name in names}
 

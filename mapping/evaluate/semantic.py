@@ -19,6 +19,7 @@ import trimesh
 from scipy.spatial import cKDTree
 
 from mapping.perception.codebook import CodeBook
+from mapping.perception.text_encoder import TextEncoder, shared_text_encoder
 
 __all__ = [
     "CATEGORY_PROMPT",
@@ -28,6 +29,7 @@ __all__ = [
     "category_prompts",
     "ground_truth_semantic_points",
     "per_class_table",
+    "score_semantics",
     "semantic_metrics",
     "zero_shot_labels",
 ]
@@ -225,6 +227,13 @@ def semantic_metrics(
     rows = [ClassRow(str(classes[k]), float(freq[k]), float(iou[k]), float(acc[k]), int(counts[k])) for k in order]
     return SemanticMetrics(f_miou=100.0 * float(freq @ iou), f_macc=100.0 * float(freq @ acc),
                            miou=100.0 * float(iou.mean()), macc=100.0 * float(acc.mean()), per_class=rows)
+
+
+def score_semantics(gt_points: np.ndarray, gt_labels: np.ndarray, recon_points: np.ndarray, recon_ids: np.ndarray,
+                    codebook: CodeBook, vocabulary: list[str], text_encoder: TextEncoder | None = None) -> SemanticMetrics:
+    """F-mIoU / F-mAcc of a reconstruction whose instance ids have meanings in ``codebook``."""
+    labels = zero_shot_labels(codebook, vocabulary, text_encoder or shared_text_encoder())
+    return semantic_metrics(gt_points, gt_labels, recon_points, recon_ids, labels)
 
 
 def ground_truth_semantic_points(
