@@ -232,6 +232,35 @@ class KeyframeBuffer:
             own=torch.as_tensor(np.stack(own_all), device=self.device),
         )
 
+    @torch.no_grad()
+    def observes(self, points: torch.Tensor, tolerance_m: float = 0.05) -> torch.Tensor:
+        """Which (M, 3) world points some held keyframe saw: the point projects into the image in front of
+        the camera and the depth there is within ``tolerance_m`` of its own. (M,) bool; all False
+        before the first keyframe. What is not observed is this agent's blind zone."""
+        n = len(self.slot_frame)
+        seen = torch.zeros(points.shape[0], dtype=torch.bool, device=points.device)
+        if n == 0 or self.rays_cam is None or points.shape[0] == 0:
+            return seen
+        cam = self.rays_cam  # (H*W, 3): ((u - cx) / fx, (v - cy) / fy, 1), row-major
+        w = int((cam[:, 1] == cam[0, 1]).sum())
+        h = cam.shape[0] // w
+        fx, fy = 1.0 / float(cam[1, 0] - cam[0, 0]), 1.0 / float(cam[w, 1] - cam[0, 1]) if h > 1 else 1.0
+        cx, cy = -float(cam[0, 0]) * fx, -float(cam[0, 1]) * fy
+        pts = points.to(self.device, torch.float32)
+        for slot in range(n):
+            pose = self.poses[slot]
+            local = (pts - pose[:3, 3]) @ pose[:3, :3]  # world -> camera (rotation transposed)
+            z = local[:, 2]
+            front = z > 1e-3
+            zs = torch.where(front, z, torch.ones_like(z))
+            u = torch.round(local[:, 0] / zs * fx + cx).long()
+            v = torch.round(local[:, 1] / zs * fy + cy).long()
+            inside = front & (u >= 0) & (u < w) & (v >= 0) & (v < h)
+            pixel = (v.clamp(0, h - 1) * w + u.clamp(0, w - 1))
+            d = self.depth[slot][pixel]
+            seen |= (inside & (d > 0) & ((d - z).abs() < tolerance_m)).to(seen.device)
+        return seen
+
     # ---- checkpoints -------------------------------------------------------------------------------
     def state(self) -> dict:
         """Images, poses and pixel pools as tensors and lists (for a weights-only checkpoint)."""

@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+import torch
 
 from mapping.data import Frame, Intrinsics
 from mapping.keyframes import KeyframeBuffer
@@ -49,3 +50,23 @@ def test_merged_ids_share_their_pixels():
     buf.merge_ids(6, 5)
     assert not buf.has_pixels(6) and buf.has_pixels(5)
     assert buf.sample([5], 100, 1.0, np.random.default_rng(0)).own.all()
+
+
+def test_observes_tells_seen_surface_from_blind_zones():
+    buf = KeyframeBuffer(capacity=4)
+    assert not buf.observes(torch.tensor([[0.0, 0.0, 2.0]])).any()  # nothing held yet
+    frame, inst = _frame(0, 5)
+    pose = np.eye(4)
+    pose[:3, 3] = [1.0, 0.0, 0.0]  # camera at x = 1 looking along +z; the wall of depth 2 is at z = 2
+    buf.add(Frame(index=0, rgb=frame.rgb, depth=frame.depth, pose=pose, intrinsics=K, instance=inst), inst)
+    points = torch.tensor([[1.0, 0.0, 2.0],   # on the observed wall, image centre
+                           [1.3, 0.2, 2.02],  # on it, off-centre, within the tolerance
+                           [1.0, 0.0, 3.0],   # behind the wall: never seen
+                           [1.0, 0.0, 1.0],   # in front of it: free space, not a seen surface
+                           [4.0, 0.0, 2.0],   # outside the image
+                           [1.0, 0.0, -2.0]])  # behind the camera
+    assert buf.observes(points).tolist() == [True, True, False, False, False, False]
+    state = buf.state()
+    again = KeyframeBuffer(capacity=4)
+    again.restore(state)
+    assert again.observes(points).tolist() == [True, True, False, False, False, False]

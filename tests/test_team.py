@@ -16,7 +16,7 @@ from mapping.team import (Channel, ChannelConfig, ConsistencyConfig, InstancePay
 from mapping.team.arrival import InstanceView, align_arrivals
 from mapping.team.consistency import (ConsistencyPairs, consensus_penalty, dinno_dual_update, dinno_penalty,
                                       metropolis_mix)
-from mapping.team.cross_rendering import render_consistency_loss
+from mapping.team.cross_rendering import instance_render_consistency_loss, peer_render_targets, render_consistency_loss
 
 
 def _payload(iid=3, cloud=True, dtype=np.float32):
@@ -158,6 +158,75 @@ def test_render_consistency_fits_a_blind_zone_where_parameter_consistency_alone_
     assert parameter_only > 3 * with_render, (parameter_only, with_render)
 
 
+def test_instance_form_of_eq13_fits_a_blind_zone_and_keeps_free_space_free():
+    peer = _plane_bank(0, 400)  # the peer saw the surface at z = 1.5
+    rays = _down_rays()
+    labels = [torch.tensor([7])]
+    me = _plane_bank(5, 0)  # never saw it
+    opt = StackedAdam(me, AdamConfig(lr=3e-3))
+    g = torch.Generator().manual_seed(3)
+    for _ in range(60):
+        targets = peer_render_targets([peer], labels, rays, {7: 7})
+        loss, used = instance_render_consistency_loss([me], labels, targets, generator=g), len(targets)
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+    assert used == len(rays)
+    with torch.no_grad():
+        from mapping.render import CompositeConfig, composite_instances
+        depth = composite_instances([me], rays, CompositeConfig(samples_per_box=64), with_colour=False).depth
+        column = torch.stack([torch.zeros(20), torch.zeros(20), torch.linspace(1.0, 1.35, 20)], 1)
+        in_front = me(column[None], with_colour=False).occupancy
+    assert float((depth - 1.5).abs().mean()) < 0.05
+    assert float(in_front.max()) < 0.1  # no occluder in front of the peer's surface
+
+
+def test_eq13_skips_rays_whose_surface_i_observed():
+    peer, me = _plane_bank(0, 200), _plane_bank(5, 0)
+    rays, labels = _down_rays(64), [torch.tensor([0])]
+    everywhere = lambda points: torch.ones(points.shape[0], dtype=torch.bool)  # noqa: E731
+    targets = peer_render_targets([peer], labels, rays, {0: 0}, observed=everywhere)
+    assert len(targets) == 0 and float(instance_render_consistency_loss([me], labels, targets)) == 0.0
+    loss, used = render_consistency_loss([me], [peer], rays, observed=everywhere)
+    assert used == 0 and float(loss) == 0.0
+
+
+def test_eq13_trusts_a_surface_i_saw_in_front_of_the_peers():
+    """The peer's map misses a surface at z = 1.5 that I observed (its ray runs on to z = 1.8): that ray is
+    not mine to learn from, since following it would erase what I saw."""
+    me = _plane_bank(0, 400)  # solid from z = 1.5
+
+    class Far:  # the peer's map: a surface at z = 1.8 only
+        bound_min, bound_max, num_instances = torch.tensor([[-0.5, -0.5, 1.0]]), torch.tensor([[0.5, 0.5, 2.0]]), 1
+
+        def query(self, points, rows, with_colour=True, block_size=4096):
+            from mapping.field import FieldOutput
+            return FieldOutput((points[:, 2] > 1.8).float(), None)
+
+    rays, labels = _down_rays(64), [torch.tensor([0])]
+    saw_the_plane = lambda p: (p[:, 2] - 1.5).abs() < 0.05  # noqa: E731
+    assert len(peer_render_targets([Far()], labels, rays, {0: 0}, [me], saw_the_plane)) == 0
+    assert len(peer_render_targets([Far()], labels, rays, {0: 0}, [me], None)) == 64  # without the test: all
+
+
+def test_an_unaligned_peer_surface_does_not_empty_my_instance_there():
+    """The peer's surface is its instance 3, which alignment tied to none of mine: my instance 0 may well
+    be that surface (alignment missed it), so only the space in front of it is taught to be free."""
+    peer, me = _plane_bank(0, 400), _plane_bank(1, 400)  # both know the surface
+    rays = _down_rays()
+    opt = StackedAdam(me, AdamConfig(lr=3e-3))
+    g = torch.Generator().manual_seed(3)
+    for _ in range(40):
+        targets = peer_render_targets([peer], [torch.tensor([3])], rays, {})
+        loss = instance_render_consistency_loss([me], [torch.tensor([0])], targets, generator=g)
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+    with torch.no_grad():
+        behind = torch.stack([torch.zeros(20), torch.zeros(20), torch.linspace(1.55, 1.9, 20)], 1)
+        assert float(me(behind[None], with_colour=False).occupancy.min()) > 0.9
+
+
 # ---- alignment on arrival --------------------------------------------------------------------------
 def _box_cloud(lo, hi, step=0.02):
     axes = [np.arange(a, b + 1e-9, step) for a, b in zip(lo, hi)]
@@ -207,8 +276,8 @@ def _tiny_team(tiny_world, **overrides):
     streams = [_CountingStream(s) for s in world_streams(tiny_world, seed=0, segmentation_errors=False)]
     channel = overrides.pop("channel", ChannelConfig())
     mapping = replace(mapping_config("tiny"), iterations_per_keyframe=2, refit_steps=10)
-    config = TeamConfig(mapping=mapping, frames_per_round=4,
-                        consistency=ConsistencyConfig(iterations=2, rays_per_pose=64), **overrides)
+    overrides.setdefault("consistency", ConsistencyConfig(iterations=2, rays_per_pose=64))
+    config = TeamConfig(mapping=mapping, frames_per_round=4, **overrides)
     return Team(streams, config, world_vocabulary(tiny_world), seed=0, channel=channel, device="cpu"), streams
 
 
@@ -256,3 +325,25 @@ def test_team_checkpoint_round_trip(tiny_world, tmp_path):
     for ma, mb in zip(team.members, resumed.members):
         for name in ma.mapper.banks:
             assert torch.equal(ma.mapper.banks[name].params, mb.mapper.banks[name].params)
+
+
+def test_an_unknown_form_of_eq13_is_refused_by_name():
+    with pytest.raises(ValueError, match="cross_rendering_form 'depth'.*instance"):
+        ConsistencyConfig(cross_rendering_form="depth")
+
+
+@pytest.mark.parametrize("ray_poses", ["current", "mapped"])
+def test_ray_messages_carry_the_views_they_are_asked_for(tiny_world, ray_poses):
+    team, streams = _tiny_team(tiny_world, consistency=ConsistencyConfig(iterations=2, rays_per_pose=64,
+                                                                          ray_poses=ray_poses))
+    for _ in range(2):
+        team.round(RoundPlan.never(2))
+    member, per_round = team.members[0], team.config.frames_per_round
+    poses = np.stack([streams[0].read(i)[0].pose for i in range(2 * per_round)]).astype(np.float32)
+    message = member.ray_message(1, team.round_index, seed=5)
+    frames = {int(np.argmin(np.abs(poses - p).sum((1, 2)))) for p in message.poses}
+    if ray_poses == "current":  # this round's views
+        assert frames <= set(range(per_round, 2 * per_round))
+    else:  # views read in earlier rounds, which the sender's map has trained on
+        assert frames <= set(range(per_round)) and len(frames) == team.config.consistency.poses_per_message
+    assert member.ray_message(1, team.round_index, seed=5).poses.tobytes() == message.poses.tobytes()  # replayable

@@ -10,7 +10,7 @@ loss, eq. 8-11), ``parameter_message`` / ``ray_message`` for the peers the plan 
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Protocol, Sequence
 
 import numpy as np
@@ -27,7 +27,8 @@ from mapping.team.arrival import ArrivalDecision, InstanceView, align_arrivals
 from mapping.team.config import ConsistencyConfig, ExchangeConfig, TeamConfig  # noqa: F401 (re-exported)
 from mapping.team.consistency import (ConsistencyPairs, consensus_penalty, dinno_dual_update, dinno_penalty,
                                       metropolis_mix)
-from mapping.team.cross_rendering import rays_of_message, render_consistency_loss
+from mapping.team.cross_rendering import (instance_render_consistency_loss, peer_render_targets, rays_of_message,
+                                         render_consistency_loss)
 from mapping.team.global_map import GLOBAL_INSTANCE_ID, as_global_image, global_entry
 from mapping.team.messages import InstancePayload, ParameterMessage, PointCloudMessage, RayMessage
 
@@ -96,7 +97,7 @@ class TeamMember:
         self.sent_cloud_points: dict[int, dict[int, int]] = {}
         self.duals: dict[str, torch.Tensor] = {}
         self.peer_positions: dict[int, tuple[int, np.ndarray]] = {}  # peer -> (round, (3,) position) from its rays
-        self._shadow: dict[int, tuple[int, list]] = {}
+        self._shadow: dict[int, tuple[int, list, list]] = {}
 
     @property
     def name(self) -> str:
@@ -176,7 +177,11 @@ class TeamMember:
             return None
         c = self.config.consistency
         first = max(0, self.next_frame - self.config.frames_per_round)
-        picks = np.unique(np.linspace(first, self.next_frame - 1, c.poses_per_message).round().astype(int))
+        if c.ray_poses == "mapped" and first > 0:  # views this agent has trained on for a round or more
+            picks = np.unique(np.random.default_rng([seed, 7]).choice(first, size=min(c.poses_per_message, first),
+                                                                       replace=False))
+        else:
+            picks = np.unique(np.linspace(first, self.next_frame - 1, c.poses_per_message).round().astype(int))
         frames = [self.stream.read(int(i))[0] for i in picks]
         k = frames[0].intrinsics
         return RayMessage(self.index, receiver, round_index, np.stack([f.pose for f in frames]).astype(np.float32),
@@ -319,6 +324,16 @@ class TeamMember:
         if n_pairs == 0 and not rays:
             return {**terms, "pairs": 0, "seconds": time.perf_counter() - start}
 
+        own_fields, own_labels = self._own_fields()
+        observed = self.mapper.keyframes.observes if c.blind_zones_only else None
+        weights = replace(self.config.mapping.loss_weights, colour=0.0, depth_uncertainty=c.render_depth_uncertainty)
+        instance_targets = [None] * len(rays)
+        if c.cross_rendering_form == "instance":  # the peer's renderings do not change within the round
+            instance_targets = [peer_render_targets(*self._peer_fields(sender), bundle, self.matches.get(sender, {}),
+                                                    own_fields, observed, c.samples_per_box,
+                                                    surface_eps_m=self.config.mapping.sampler.surface_eps_m)
+                                for sender, bundle in zip(senders, rays)]
+
         def extra() -> torch.Tensor:
             total = torch.zeros((), device=self.mapper.device)
             for name, bank in self.mapper.banks.items():
@@ -329,10 +344,13 @@ class TeamMember:
             terms["parameter"] = float(total.detach())
             render = torch.zeros((), device=self.mapper.device)
             used = 0
-            own_fields = self._own_fields()
-            for sender, bundle in zip(senders, rays):
-                loss, n = render_consistency_loss(own_fields, self._peer_fields(sender), bundle, c.samples_per_box,
-                                                  free_space_weight=c.free_space_weight)
+            for sender, bundle, targets in zip(senders, rays, instance_targets):
+                if targets is not None:
+                    loss, n = instance_render_consistency_loss(own_fields, own_labels, targets, self.config.mapping.sampler,
+                                                               weights, self.mapper.generator), len(targets)
+                else:
+                    loss, n = render_consistency_loss(own_fields, self._peer_fields(sender)[0], bundle, c.samples_per_box,
+                                                      free_space_weight=c.free_space_weight, observed=observed)
                 render, used = render + loss, used + n
             terms["render"], terms["render_rays"] = float(render.detach()), used
             return total + c.render_weight * render
@@ -371,21 +389,24 @@ class TeamMember:
         return ConsistencyPairs(torch.as_tensor(rows, device=dev), torch.stack(vectors).to(dev),
                                 torch.as_tensor(peers, device=dev), torch.as_tensor([by_row[r] for r in rows], device=dev))
 
-    def _own_fields(self) -> list:
-        out = []
+    def _own_fields(self) -> tuple[list[LiveRows], list[torch.Tensor]]:
+        """My live instances per bank, and the instance id of each of their rows."""
+        fields, labels = [], []
         for name, bank in self.mapper.banks.items():
-            rows = sorted(s.row for s in self.mapper.slots.values() if s.bank == name and s.alive)
-            if rows:
-                out.append(LiveRows(bank, rows))
-        return out
+            live = sorted((s.row, iid) for iid, s in self.mapper.slots.items() if s.bank == name and s.alive)
+            if live:
+                fields.append(LiveRows(bank, [row for row, _ in live]))
+                labels.append(torch.as_tensor([iid for _, iid in live], dtype=torch.long, device=bank.device))
+        return fields, labels
 
-    def _peer_fields(self, peer: int) -> list[InstanceFieldBank]:
-        """The peer's map as I hold it (its last parameters), rebuilt when new ones came in."""
+    def _peer_fields(self, peer: int) -> tuple[list[InstanceFieldBank], list[torch.Tensor]]:
+        """The peer's map as I hold it (its last parameters), rebuilt when new ones came in, and the
+        peer's instance id of each row."""
         key = self.held_round.get(peer, -1)
         cached = self._shadow.get(peer)
         if cached is not None and cached[0] == key:
-            return cached[1]
-        fields = []
+            return cached[1], cached[2]
+        fields, labels = [], []
         for name, own_bank in self.mapper.banks.items():
             items = [p for p in self.held.get(peer, {}).values() if p.bank == name]
             if not items:
@@ -398,8 +419,9 @@ class TeamMember:
                                params=torch.as_tensor(np.stack([p.params.astype(np.float32) for p in items])))
             bank.requires_grad_(False)
             fields.append(bank)
-        self._shadow[peer] = (key, fields)
-        return fields
+            labels.append(torch.as_tensor([p.instance_id for p in items], dtype=torch.long, device=own_bank.device))
+        self._shadow[peer] = (key, fields, labels)
+        return fields, labels
 
     # ---- outputs ---------------------------------------------------------------------------------
     def entry(self, iid: int) -> CodeBookEntry:
