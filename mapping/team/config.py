@@ -48,8 +48,8 @@ class ConsistencyConfig:
     """Pixels replayed per shared pose."""
     ray_poses: str = "mapped"
     """Which of its views a peer shares rays of: ``current`` (this round's frames, the paper's) or
-    ``mapped`` (frames read before this round, drawn by the message's seed: views its map has trained
-    on, so that its rendering there is worth following). Measured (room0 ``demo``, weight 1): current
+    ``mapped`` (frames read before this round, drawn by the message's seed; this round's in the first:
+    views its map has trained on, so that its rendering there is worth following). Measured (room0 ``demo``, weight 1): current
     79.2 %, mapped 83.4 % probe coverage; the peer's map of the frames it just read has had one
     round of training."""
     poses_per_message: int = 2

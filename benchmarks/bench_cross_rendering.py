@@ -1,0 +1,148 @@
+"""Cross Rendering Supervision (eq. 13) variants: where does each put or take the team's surface?
+
+Run: `.venv/bin/python benchmarks/bench_cross_rendering.py [--scene room0] [--preset demo] [--variants ...]`.
+
+Every variant is the `openmulti` team (policy `always`, consensus eq. 12) with other eq. 13 settings
+(`ConsistencyConfig` fields). After the last round each agent's map is probed on 20k ground-truth
+surface samples (`mapping.evaluate.probe`, no meshing: a run costs its rounds only) and the coverage is
+split by whether the agent's own frames observed the sample ("seen") or not ("blind": what the team
+must give it). A finished variant is not run again (delete `--out/<name>.json`); results are written
+atomically. Prints a Markdown table and writes `--out/bench_cross_rendering.json` and `.png`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import time
+from pathlib import Path
+
+import numpy as np
+
+VARIANTS: dict[str, dict] = {
+    "no_cross": {"cross_rendering": False},
+    "paper_current_w1": {"cross_rendering_form": "composite", "ray_poses": "current", "render_weight": 1.0},
+    "current_w1_blind": {"cross_rendering_form": "composite", "ray_poses": "current", "render_weight": 1.0,
+                         "blind_zones_only": True},
+    "mapped_w1": {"ray_poses": "mapped", "render_weight": 1.0},
+    "mapped_w1_blind": {"ray_poses": "mapped", "render_weight": 1.0, "blind_zones_only": True},
+    "default": {},
+    "mapped_w0.1": {"ray_poses": "mapped", "render_weight": 0.1},
+    "default_rho3": {"rho": 3.0},
+    "instance_mapped_w1_blind": {"cross_rendering_form": "instance", "ray_poses": "mapped", "render_weight": 1.0,
+                                 "blind_zones_only": True},
+}
+"""Name -> ConsistencyConfig overrides (``default``: the library's defaults)."""
+
+
+def seen_by_own_frames(world, agent: int, points: np.ndarray, stride: int = 5, tolerance_m: float = 0.03) -> np.ndarray:
+    """(P,) bool: some frame of the agent's path (every ``stride``-th) shows the point at its depth."""
+    k, seen = world.intrinsics, np.zeros(len(points), bool)
+    for i in range(0, len(world.agent_poses[agent]), stride):
+        w2c = np.linalg.inv(np.asarray(world.agent_poses[agent][i], np.float64))
+        cam = points @ w2c[:3, :3].T + w2c[:3, 3]
+        z = cam[:, 2]
+        front = z > 0.05
+        zs = np.where(front, z, 1.0)
+        u = np.round(k.fx * cam[:, 0] / zs + k.cx).astype(int)
+        v = np.round(k.fy * cam[:, 1] / zs + k.cy).astype(int)
+        inside = front & (u >= 0) & (u < k.width) & (v >= 0) & (v < k.height)
+        depth = world.render(agent, i).depth
+        observed = np.zeros(len(points))
+        observed[inside] = depth[v[inside], u[inside]]
+        seen |= inside & (np.abs(observed - z) < tolerance_m)
+    return seen
+
+
+def run_variant(name: str, overrides: dict, scene: str, preset: str, seed: int, threads: int) -> dict:
+    from mapping.evaluate.probe import surface_probe_coverage
+    from mapping.perception import shared_text_encoder
+    from mapping.runtime import set_threads
+    from mapping.team import ChannelConfig, ConsistencyConfig, RoundPlan, Team
+    from openmulti_env.run import _map_structure
+    from openmulti_env.run_presets import team_config, world_config
+    from openmulti_env.sim_team import world_streams, world_vocabulary
+    from openmulti_env.world import World
+    from tqdm import tqdm
+
+    set_threads(threads)
+    world = World.build(scene, seed=seed, config=world_config(preset, 4))
+    encoder = shared_text_encoder()
+    mapping, _ = _map_structure(world, preset, False, 128)
+    config = team_config(preset, mapping=mapping, consistency=ConsistencyConfig(**overrides))
+    team = Team(world_streams(world, seed, True, text_encoder=encoder), config, world_vocabulary(world, encoder),
+                seed=seed, channel=ChannelConfig(1.0, None), device="cpu")
+    start = time.perf_counter()
+    for _ in tqdm(range(team.rounds_total()), desc=name, unit="round"):
+        team.round(RoundPlan.always(team.num_agents))
+    rounds_s = time.perf_counter() - start
+    points, normals, _ = world.surface.sample_points(20000, seed=seed)
+    agents = []
+    for a, member in enumerate(team.members):
+        covered = surface_probe_coverage(member.mapper, points, normals)
+        seen = seen_by_own_frames(world, a, points)
+        agents.append({"coverage": float(covered.mean()), "seen": float(covered[seen].mean()),
+                       "blind": float(covered[~seen].mean()), "seen_share": float(seen.mean())})
+    world.close()
+    mean = {key: float(np.mean([x[key] for x in agents])) for key in agents[0]}
+    return {"variant": name, "overrides": overrides, "scene": scene, "preset": preset, "seed": seed,
+            "rounds_s": rounds_s, "threads": threads, "agents": agents, "mean": mean}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--scene", default="room0")
+    parser.add_argument("--preset", default="demo")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--variants", nargs="+", default=list(VARIANTS), help=f"known: {', '.join(VARIANTS)}")
+    parser.add_argument("--threads", type=int, default=os.cpu_count() or 1)
+    parser.add_argument("--out", type=Path, default=Path("runs/bench_cross_rendering"))
+    args = parser.parse_args()
+    unknown = [v for v in args.variants if v not in VARIANTS]
+    if unknown:
+        parser.error(f"unknown variants {unknown}; known: {', '.join(VARIANTS)}")
+    from openmulti_env.results import write_json_atomic
+
+    args.out.mkdir(parents=True, exist_ok=True)
+    rows = []
+    for name in args.variants:
+        path = args.out / f"{name}.json"
+        if path.is_file():
+            rows.append(json.loads(path.read_text()))
+            continue
+        row = run_variant(name, VARIANTS[name], args.scene, args.preset, args.seed, args.threads)
+        write_json_atomic(path, row)
+        rows.append(row)
+    print(f"\n{args.scene}, preset {args.preset}, seed {args.seed}, 4 agents, policy always; "
+          f"{platform.machine()} CPU, {os.cpu_count()} cores\n")
+    print("| variant | coverage [%] | seen [%] | blind [%] | rounds [s] |")
+    print("|---|---|---|---|---|")
+    for r in rows:
+        m = r["mean"]
+        print(f"| `{r['variant']}` | {100 * m['coverage']:.1f} | {100 * m['seen']:.1f} | {100 * m['blind']:.1f} | "
+              f"{r['rounds_s']:.0f} |")
+    write_json_atomic(args.out / "bench_cross_rendering.json", {"rows": rows})
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(9, 4))
+    x = np.arange(len(rows))
+    for k, (key, label) in enumerate((("coverage", "whole room"), ("seen", "seen by the agent"),
+                                      ("blind", "blind zones"))):
+        ax.bar(x + (k - 1) * 0.27, [100 * r["mean"][key] for r in rows], 0.27, label=label)
+    ax.set_xticks(x, [r["variant"] for r in rows], rotation=30, ha="right", fontsize=8)
+    ax.set_ylabel("probe coverage [%]")
+    ax.set_ylim(0, 100)
+    ax.set_title(f"eq. 13 variants, {args.scene} {args.preset} seed {args.seed}: mean of 4 agents")
+    ax.legend(fontsize=8, loc="lower left")
+    fig.tight_layout()
+    fig.savefig(args.out / "bench_cross_rendering.png", dpi=120)
+    print(f"\nwrote {args.out / 'bench_cross_rendering.json'} and .png")
+
+
+if __name__ == "__main__":
+    main()
