@@ -71,6 +71,20 @@ def test_resume_skips_finished_runs_and_redoes_a_half_written_one(tmp_path):
     assert len(calls) == len(specs)
 
 
+def test_a_row_made_under_other_library_defaults_is_redone(tmp_path, monkeypatch):
+    import openmulti_env.reproduce.runner as runner
+
+    specs = table_runs("geometric", ["tiny"], [0])[:2]
+    calls = []
+    run_table(specs, "tiny", tmp_path, run_fn=_fake_run(calls), progress=False)
+    calls.clear()
+    made = runner.library_defaults
+    monkeypatch.setattr(runner, "library_defaults",
+                        lambda preset: {**made(preset), "consistency": {**made(preset)["consistency"], "render_weight": 1.0}})
+    run_table(specs, "tiny", tmp_path, run_fn=_fake_run(calls), progress=False)  # eq. 13's weight changed since
+    assert len(calls) == len(specs)
+
+
 def _rows():
     rows = []
     for method, cr in (("openmulti", 80.0), ("dinerf_global", 60.0)):

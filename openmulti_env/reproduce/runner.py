@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import time
+from dataclasses import asdict
 from pathlib import Path
 from typing import Callable
 
@@ -37,10 +38,23 @@ def check_scenes(scenes: list[str]) -> None:
 
 
 def run_settings(spec: RunSpec, preset: str, three_cullings: bool, max_rounds: int | None) -> dict:
-    """Everything that decides a run's row (its key on disk is derived from the same)."""
+    """Everything that decides a run's row (its key on disk is derived from the same): the method's
+    options and the library's defaults of what it learns with (consistency, messages, the preset's
+    mapper), so that a row made before a default changed is redone, not mixed into a new table."""
     return {"method": spec.method, "scene": spec.scene, "seed": spec.seed, "agents": spec.agents,
             "success_rate": spec.success_rate, "preset": preset, "policy": spec.policy,
-            "options": METHODS[spec.method].run_options(), "three_cullings": three_cullings, "max_rounds": max_rounds}
+            "options": METHODS[spec.method].run_options(), "three_cullings": three_cullings, "max_rounds": max_rounds,
+            "defaults": library_defaults(preset)}
+
+
+def library_defaults(preset: str) -> dict:
+    """The team settings a run takes from the library (JSON-plain), beside its method's options."""
+    from mapping.team import ConsistencyConfig, ExchangeConfig  # noqa: PLC0415
+    from openmulti_env.run import _plain  # noqa: PLC0415
+    from openmulti_env.run_presets import mapping_config  # noqa: PLC0415
+
+    return json.loads(json.dumps(_plain({"consistency": asdict(ConsistencyConfig()), "exchange": asdict(ExchangeConfig()),
+                                         "mapping": asdict(mapping_config(preset))})))
 
 
 def row_from_metrics(spec: RunSpec, metrics: dict) -> dict:
