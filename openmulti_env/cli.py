@@ -102,7 +102,7 @@ def cmd_run(args: argparse.Namespace) -> int:
                  alignment=args.alignment, segmentation_errors=not args.perfect_masks,
                  clip_checkpoint=args.clip_checkpoint, comm_budget_mb=args.comm_budget_mb,
                  consistency=args.consistency, cross_rendering=args.cross_rendering, float16=args.float16,
-                 changed_only=args.changed_only, threads=args.threads)
+                 changed_only=args.changed_only, threads=args.threads, workers=args.workers)
     print()
     print(f"{'agent':<10} {'acc [cm]':>9} {'comp [cm]':>10} {'comp ratio [%]':>15} {'F-mIoU':>7} {'F-mAcc':>7} "
           f"{'instances':>10} {'compute [s]':>12}")
@@ -224,7 +224,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--float16", action="store_true", help="send network vectors as float16")
     p.add_argument("--changed-only", type=float, metavar="REL",
                    help="skip instances whose parameters moved less than REL (relative L2) since last sent")
-    p.add_argument("--threads", type=int, help="torch threads (default: all cores)")
+    p.add_argument("--threads", type=int, help="torch threads (default: all cores, shared by the workers)")
+    p.add_argument("--workers", type=int,
+                   help="agents trained side by side on threads (default: one per core, 1 torch thread each; "
+                        "1 when --threads is given); results do not depend on it")
     p.add_argument("--clip-checkpoint", metavar="PATH",
                    help="local open_clip checkpoint: masks get visual features (optional extra openmulti[clip])")
     p.add_argument("--perfect-masks", action="store_true",

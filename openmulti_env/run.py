@@ -10,6 +10,7 @@ agent mapping a list of frames alone) serves the dataset path.
 
 from __future__ import annotations
 
+import json
 import time
 import warnings
 from dataclasses import asdict, replace
@@ -22,7 +23,7 @@ from tqdm import tqdm
 
 from mapping.agent import MappingAgent, MappingConfig
 from mapping.field import OBJECT_FIELD
-from mapping.runtime import set_threads
+from mapping.runtime import available_cores, set_threads
 from mapping.team import ChannelConfig, ConsistencyConfig, ExchangeConfig, Team
 from mapping.team.consistency import CONSISTENCY_ALGORITHMS
 from mapping.team.global_map import global_rays_for, scene_frame
@@ -79,7 +80,7 @@ def run(scene: str, agents: int, policy: str, preset: str, seed: int, out: Path,
         float16: bool = False, changed_only: float | None = None, threads: int | None = None,
         checkpoint_every: int = 5, progress: bool = True, max_rounds: int | None = None,
         global_map: bool = False, global_width: int = GLOBAL_WIDTH, share_point_clouds: bool = False,
-        three_cullings: bool = False, plots: bool = True) -> dict:
+        three_cullings: bool = False, plots: bool = True, workers: int | None = None) -> dict:
     """The whole run; returns the metrics dictionary written to ``out/metrics.json``.
 
     Args:
@@ -101,6 +102,9 @@ def run(scene: str, agents: int, policy: str, preset: str, seed: int, out: Path,
         share_point_clouds: "send parameters" links carry the observed points instead (Table VI).
         three_cullings: also score every map NICE-SLAM-culled and unculled (``openmulti_env.scoring``).
         plots: write the pictures (the experiments skip them: they cost seconds per run).
+        workers: agents trained side by side on threads (``Team(workers=)``; same results as 1). Default:
+            one per core when ``threads`` is not given (each with 1 torch thread: small batches use one
+            core better than two), else 1.
     """
     spec = parse_policy(policy)
     if alignment not in RUN_ALIGNMENT_MODES:
@@ -108,7 +112,11 @@ def run(scene: str, agents: int, policy: str, preset: str, seed: int, out: Path,
                          "(the ground-truth 'oracle' alignment is in benchmarks/bench_alignment.py)")
     if consistency not in CONSISTENCY_ALGORITHMS:
         raise ValueError(f"unknown consistency {consistency!r}; choose one of {CONSISTENCY_ALGORITHMS}")
-    set_threads(threads)
+    if workers is None:
+        workers = min(available_cores(), agents) if threads is None else 1
+    if workers < 1:
+        raise ValueError(f"workers must be >= 1, got {workers}")
+    set_threads(threads, workers=workers)
     start = time.perf_counter()
     torch.manual_seed(seed)
     with warnings.catch_warnings(record=True) as notices:
@@ -124,7 +132,6 @@ def run(scene: str, agents: int, policy: str, preset: str, seed: int, out: Path,
     if global_map or share_point_clouds or three_cullings:  # older runs' settings stay as they were
         settings.update({"global_map": global_map, "global_width": global_width,
                          "share_point_clouds": share_point_clouds, "three_cullings": three_cullings})
-    forget_stale_checkpoints(out, settings)
     print(f"[openmulti] world {world.scene.name}: {len(world.scene.instances)} instances, "
           f"{world.num_agents} agent(s), {sum(len(p) for p in world.agent_poses)} frames")
     encoder = shared_text_encoder()
@@ -133,12 +140,19 @@ def run(scene: str, agents: int, policy: str, preset: str, seed: int, out: Path,
                          consistency=ConsistencyConfig(algorithm=consistency, cross_rendering=cross_rendering),
                          exchange=ExchangeConfig(float16=float16, changed_only=changed_only,
                                                  point_clouds=share_point_clouds))
+    # the checkpoints must come from the same team settings too, defaults included: a run made before
+    # a default changed (e.g. eq. 13's) is mapped again, not resumed into a mix of two versions
+    forget_stale_checkpoints(out, {**settings, "team": json.loads(json.dumps(_plain(asdict(config))))})
     budget = None if comm_budget_mb is None else comm_budget_mb * 1e6
     team = Team(world_streams(world, seed, segmentation_errors, text_encoder=encoder, image_encoder=image_encoder),
                 config, world_vocabulary(world, encoder), seed=seed,
-                channel=ChannelConfig(spec.success_probability, budget), device=device)
-    reports = _run_rounds(team, ScriptedPolicy(spec, world.num_agents), out / "checkpoints" / "team.pt",
-                          checkpoint_every, progress, max_rounds)
+                channel=ChannelConfig(spec.success_probability, budget), device=device, workers=workers)
+    try:
+        reports = _run_rounds(team, ScriptedPolicy(spec, world.num_agents), out / "checkpoints" / "team.pt",
+                              checkpoint_every, progress, max_rounds)
+    finally:
+        team.close()  # the worker threads (the team stays usable for evaluation)
+    set_threads(threads)  # evaluation runs on this thread alone: give it every core again
     views = agents_camera_views(world, config.mapping.keyframe_every) if three_cullings else None
     result = _evaluate(world, team, seed, out, encoder, image_encoder, views, plots)
     bytes_per_round = [int(sum(r["bytes_sent"])) for r in reports]

@@ -68,6 +68,9 @@ def test_team_run_writes_metrics_answers_queries_and_resumes(capsys, tmp_path):
     printed = capsys.readouterr().out
     hits = json.loads(printed[printed.index("{"):])
     assert hits["results"][0]["category"] == "floor"
+    # the checkpoints are kept with the team settings, library defaults included (a changed default maps again)
+    kept = json.loads((out / "checkpoints" / "run_settings.json").read_text())
+    assert kept["team"]["consistency"]["render_weight"] == metrics["config"]["team"]["consistency"]["render_weight"]
     # a second run in the same directory resumes after the last saved round
     assert main(args) == 0
     assert "resumed the team after round 6" in capsys.readouterr().out

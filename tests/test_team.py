@@ -145,7 +145,8 @@ def test_render_consistency_fits_a_blind_zone_where_parameter_consistency_alone_
             anchor = me.params.detach().clone()
             loss = consensus_penalty(me.params, anchor, pairs, 0.3)
             if use_render:
-                loss = loss + render_consistency_loss([me], [peer], rays, samples_per_box=32)[0]
+                loss = loss + render_consistency_loss([me], peer_render_targets([peer], None, rays, samples_per_box=32),
+                                                      samples_per_box=32)
             opt.zero_grad()
             loss.backward()
             opt.step()
@@ -187,8 +188,8 @@ def test_eq13_skips_rays_whose_surface_i_observed():
     everywhere = lambda points: torch.ones(points.shape[0], dtype=torch.bool)  # noqa: E731
     targets = peer_render_targets([peer], labels, rays, {0: 0}, observed=everywhere)
     assert len(targets) == 0 and float(instance_render_consistency_loss([me], labels, targets)) == 0.0
-    loss, used = render_consistency_loss([me], [peer], rays, observed=everywhere)
-    assert used == 0 and float(loss) == 0.0
+    targets = peer_render_targets([peer], None, rays, observed=everywhere)
+    assert len(targets) == 0 and float(render_consistency_loss([me], targets)) == 0.0
 
 
 def test_eq13_trusts_a_surface_i_saw_in_front_of_the_peers():

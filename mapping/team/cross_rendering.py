@@ -1,12 +1,13 @@
 """Cross Rendering Supervision (paper eq. 13): render a peer's rays with my map and with the peer's.
 
-Peer j shares the camera poses of its current frames and a pixel-sampling seed (``RayMessage``); I
-replay the same pixels, render depth along those rays twice, with my own fields (D_k, with gradient)
-and with the parameters I hold from j (D_j, detached), and minimise sum_r |D_k(r) - D_j(r)| over the
-rays on which j's map renders a surface. No depth crosses the channel. The peer's rays run through
-the parts of the room j is looking at now, which are mostly my blind zones: there parameter
-closeness alone does not make my (non-convex) networks render j's surface, the rendering does.
-"""
+Peer j shares camera poses of its views and a pixel-sampling seed (``RayMessage``; by default views it
+has mapped for a round or more, ``ConsistencyConfig.ray_poses``); I replay the same pixels, render
+depth along those rays twice, with the parameters I hold from j (D_j, once per round, detached:
+``peer_render_targets``) and with my own fields (D_k, with gradient, every iteration), and minimise
+sum_r |D_k(r) - D_j(r)| over the rays on which j's map renders a surface (``render_consistency_loss``).
+No depth crosses the channel. The peer's rays run through the parts of the room j has looked at, many
+of them my blind zones: there parameter closeness alone does not make my (non-convex) networks render
+j's surface, the rendering does. ``instance_render_consistency_loss`` is a measured alternative form."""
 
 from __future__ import annotations
 
@@ -34,36 +35,26 @@ def rays_of_message(message: RayMessage, device: torch.device | str = "cpu") -> 
                        torch.as_tensor(v, dtype=torch.float32, device=device))
 
 
-def render_consistency_loss(own_fields: Sequence[InstanceField], peer_fields: Sequence[InstanceField],
-                            rays: RayBundle, samples_per_box: int = 16, min_peer_occupancy: float = 0.5,
-                            free_space_weight: float = 0.0, free_space_margin_m: float = 0.05,
-                            observed: Callable[[Tensor], Tensor] | None = None) -> tuple[Tensor, int]:
-    """Eq. 13 on (M,) rays: mean |D_own - D_peer| over rays where the peer renders occupancy above
-    ``min_peer_occupancy``; the peer side carries no gradient. Returns (loss, rays used).
+def render_consistency_loss(own_fields: Sequence[InstanceField], targets: "PeerRenderTargets",
+                            samples_per_box: int = 16, free_space_weight: float = 0.0,
+                            free_space_margin_m: float = 0.05) -> Tensor:
+    """Eq. 13 on the rays of ``targets`` (``peer_render_targets``, where the peer renders a surface):
+    mean |D_own - D_peer| of the composited depths; the peer side is fixed (rendered once per round,
+    without gradient).
 
     ``free_space_weight`` > 0 adds the termination weight my map puts more than
     ``free_space_margin_m`` in front of the peer's depth (mean over the rays): the peer saw free space
     there, so an occluder of mine in its view is removed directly instead of through the L1 on the
-    composited depth, whose gradient may as well add occupancy behind (an option, off by default).
-    ``observed`` as in ``instance_render_consistency_loss``."""
-    config = CompositeConfig(samples_per_box=samples_per_box)
-    with torch.no_grad():
-        peer = composite_instances(peer_fields, rays, config, with_colour=False)
-    use = peer.occupancy > min_peer_occupancy
-    if observed is not None and bool(use.any()):
-        flat = rays.flatten()
-        end = flat.at((peer.depth.reshape(-1) / peer.occupancy.reshape(-1).clamp_min(1e-6))[:, None])[:, 0]
-        use &= ~observed(end).reshape(use.shape)
-    if not bool(use.any()):
-        device = rays.origins.device
-        return torch.zeros((), device=device), 0
-    own = composite_instances(own_fields, rays[use], config, with_colour=False)
-    loss = (own.depth - peer.depth[use]).abs().mean()
+    composited depth, whose gradient may as well add occupancy behind (an option, off by default)."""
+    if len(targets) == 0:
+        return torch.zeros((), device=targets.depth.device)
+    own = composite_instances(own_fields, targets.rays, CompositeConfig(samples_per_box=samples_per_box),
+                              with_colour=False)
+    loss = (own.depth - targets.composited).abs().mean()
     if free_space_weight > 0 and own.weights is not None:
-        target = peer.depth[use].reshape(-1, 1)
-        in_front = own.sample_depths < target - free_space_margin_m
+        in_front = own.sample_depths < targets.composited.reshape(-1, 1) - free_space_margin_m
         loss = loss + free_space_weight * (own.weights * in_front).sum(-1).mean()
-    return loss, int(use.sum())
+    return loss
 
 
 @dataclass
@@ -73,11 +64,13 @@ class PeerRenderTargets:
     Attributes:
         rays: (M,) the rays kept.
         depth: (M,) where the peer's rendering ends (its composited depth / occupancy).
+        composited: (M,) the peer's composited depth sum_p T_p d_p (what eq. 13 compares).
         instance: (M,) my instance id that the peer's surface is aligned to, -1 for none.
     """
 
     rays: RayBundle
     depth: Tensor
+    composited: Tensor
     instance: Tensor
 
     def __len__(self) -> int:
@@ -85,15 +78,15 @@ class PeerRenderTargets:
 
 
 @torch.no_grad()
-def peer_render_targets(peer_fields: Sequence[InstanceField], peer_labels: Sequence[Tensor], rays: RayBundle,
-                        peer_to_own: dict[int, int], own_fields: Sequence[InstanceField] | None = None,
+def peer_render_targets(peer_fields: Sequence[InstanceField], peer_labels: Sequence[Tensor] | None, rays: RayBundle,
+                        peer_to_own: dict[int, int] | None = None, own_fields: Sequence[InstanceField] | None = None,
                         observed: Callable[[Tensor], Tensor] | None = None, samples_per_box: int = 16,
                         min_peer_occupancy: float = 0.5, surface_eps_m: float = 0.1) -> PeerRenderTargets:
     """Render the peer's rays with the peer's map as I hold it, once per round (its parameters do not
     change within the consistency iterations), and keep the rays I am to learn from.
 
-    A ray is dropped when the peer renders no surface on it (occupancy below ``min_peer_occupancy``),
-    and, with ``observed`` (my keyframes' test of (P, 3) points, ``KeyframeBuffer.observes``), when I
+    Both forms of eq. 13 use it. A ray is dropped when the peer renders no surface on it (occupancy
+    below ``min_peer_occupancy``), and, with ``observed`` (my keyframes' test of (P, 3) points, ``KeyframeBuffer.observes``), when I
     saw its surface myself, or when my own map (``own_fields``) ends on a surface I saw more than
     ``surface_eps_m`` in front of the peer's: there the peer's map is the one that is missing
     something (often: its newest, least trained view), and my data rules.
@@ -114,10 +107,10 @@ def peer_render_targets(peer_fields: Sequence[InstanceField], peer_labels: Seque
             keep = use.clone()
             keep[use] = ~in_front
             use = keep
-    lookup = {int(k): int(v) for k, v in peer_to_own.items()}
+    lookup = {int(k): int(v) for k, v in (peer_to_own or {}).items()}
     instance = torch.as_tensor([lookup.get(int(p), -1) for p in peer.instance[use].tolist()], dtype=torch.long,
                                device=depth.device)
-    return PeerRenderTargets(flat[use], depth[use], instance)
+    return PeerRenderTargets(flat[use], depth[use], peer.depth[use], instance)
 
 
 def instance_render_consistency_loss(own_fields: Sequence[InstanceField], own_labels: Sequence[Tensor],

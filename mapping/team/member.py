@@ -327,12 +327,12 @@ class TeamMember:
         own_fields, own_labels = self._own_fields()
         observed = self.mapper.keyframes.observes if c.blind_zones_only else None
         weights = replace(self.config.mapping.loss_weights, colour=0.0, depth_uncertainty=c.render_depth_uncertainty)
-        instance_targets = [None] * len(rays)
-        if c.cross_rendering_form == "instance":  # the peer's renderings do not change within the round
-            instance_targets = [peer_render_targets(*self._peer_fields(sender), bundle, self.matches.get(sender, {}),
-                                                    own_fields, observed, c.samples_per_box,
-                                                    surface_eps_m=self.config.mapping.sampler.surface_eps_m)
-                                for sender, bundle in zip(senders, rays)]
+        instance_form = c.cross_rendering_form == "instance"
+        # the peers' renderings do not change within the round: once per sender
+        targets = [peer_render_targets(*self._peer_fields(sender), bundle, self.matches.get(sender, {}),
+                                       own_fields if instance_form else None, observed, c.samples_per_box,
+                                       surface_eps_m=self.config.mapping.sampler.surface_eps_m)
+                   for sender, bundle in zip(senders, rays)]
 
         def extra() -> torch.Tensor:
             total = torch.zeros((), device=self.mapper.device)
@@ -344,14 +344,13 @@ class TeamMember:
             terms["parameter"] = float(total.detach())
             render = torch.zeros((), device=self.mapper.device)
             used = 0
-            for sender, bundle, targets in zip(senders, rays, instance_targets):
-                if targets is not None:
-                    loss, n = instance_render_consistency_loss(own_fields, own_labels, targets, self.config.mapping.sampler,
-                                                               weights, self.mapper.generator), len(targets)
+            for target in targets:
+                if instance_form:
+                    loss = instance_render_consistency_loss(own_fields, own_labels, target, self.config.mapping.sampler,
+                                                            weights, self.mapper.generator)
                 else:
-                    loss, n = render_consistency_loss(own_fields, self._peer_fields(sender)[0], bundle, c.samples_per_box,
-                                                      free_space_weight=c.free_space_weight, observed=observed)
-                render, used = render + loss, used + n
+                    loss = render_consistency_loss(own_fields, target, c.samples_per_box, c.free_space_weight)
+                render, used = render + loss, used + len(target)
             terms["render"], terms["render_rays"] = float(render.detach()), used
             return total + c.render_weight * render
 
