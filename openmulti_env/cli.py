@@ -217,7 +217,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="data set layout of --export")
     p.set_defaults(func=cmd_scenes)
 
-    p = sub.add_parser("run", help="a multi-agent run on one scene")
+    p = sub.add_parser("run", help="a multi-agent team run on one scene (--scene) or a real RGB-D data set (--data)")
     p.add_argument("--scene", default="room0")
     p.add_argument("--agents", type=_agents, default=4)
     p.add_argument("--policy", default="always")
