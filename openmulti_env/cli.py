@@ -114,6 +114,12 @@ def cmd_run(args: argparse.Namespace) -> int:
     print(f"{'mean':<10} {_fmt(mean['acc_cm']):>9} {_fmt(mean['comp_cm']):>10} {_fmt(mean['comp_ratio']):>15} "
           f"{_fmt(mean['f_miou']):>7} {_fmt(mean['f_macc']):>7}")
     print(f"{'all maps':<10} {'':>9} {'':>10} {'':>15} {_fmt(team['f_miou']):>7} {_fmt(team['f_macc']):>7}")
+    _print_team_footer(result, out)
+    return 0
+
+
+def _print_team_footer(result: dict, out: Path) -> None:
+    """Rounds, bytes, messages and fleet time of a team run, and what it wrote."""
     msgs = result["messages"]
     print(f"\n{result['rounds']} rounds; {result['bytes_sent_total'] / 1e6:.2f} MB sent "
           f"({result['bytes_per_round_per_agent_mean'] / 1e6:.2f} MB per round per agent); messages delivered "
@@ -121,21 +127,26 @@ def cmd_run(args: argparse.Namespace) -> int:
           f"fleet time {result['fleet_s']:.1f} s")
     print(f"Wrote {out}/metrics.json, {out}/rounds.json, {out}/meshes/, {out}/codebook/, {out}/plots/ in "
           f"{result['wall_s']:.1f} s; try: openmulti query --run {out} \"somewhere to sit\"")
-    return 0
 
 
 def _run_data(args: argparse.Namespace, policy: str, out: Path) -> int:
     from openmulti_env.data_run import run_data, summary_lines  # noqa: PLC0415
 
-    print(f"[openmulti] data {args.data}, {args.agents} agents, preset {args.preset}, seed {args.seed}, policy {policy}")
+    if args.perfect_masks:
+        raise ValueError("--perfect-masks is for --scene (the simulator's error model); with --data the masks are "
+                         "the data set's instance images or the geometric segmenter's")
+    print(f"[openmulti] data {args.data}, {args.agents} agents, preset {args.preset}, seed {args.seed}, "
+          f"policy {policy}, alignment {args.alignment}, consistency {args.consistency}"
+          f"{'' if args.cross_rendering else ', no cross rendering'}")
     result = run_data(args.data, args.agents, policy, args.preset, args.seed, out, kind=args.kind,
                       gt_mesh=args.gt_mesh, frames=args.frames, intrinsics=args.intrinsics,
                       depth_scale=args.depth_scale, device=args.device, alignment=args.alignment,
-                      clip_checkpoint=args.clip_checkpoint)
+                      clip_checkpoint=args.clip_checkpoint, comm_budget_mb=args.comm_budget_mb,
+                      consistency=args.consistency, cross_rendering=args.cross_rendering, float16=args.float16,
+                      changed_only=args.changed_only, threads=args.threads)
     print()
     print("\n".join(summary_lines(result)))
-    print(f"Wrote {out}/metrics.json, {out}/meshes/, {out}/codebook/, {out}/plots/ in {result['wall_s']:.1f} s; "
-          f'try: openmulti query --run {out} "the table"')
+    _print_team_footer(result, out)
     return 0
 
 
@@ -206,7 +217,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="data set layout of --export")
     p.set_defaults(func=cmd_scenes)
 
-    p = sub.add_parser("run", help="a multi-agent run on one scene")
+    p = sub.add_parser("run", help="a multi-agent team run on one scene (--scene) or a real RGB-D data set (--data)")
     p.add_argument("--scene", default="room0")
     p.add_argument("--agents", type=_agents, default=4)
     p.add_argument("--policy", default="always")
@@ -232,8 +243,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="local open_clip checkpoint: masks get visual features (optional extra openmulti[clip])")
     p.add_argument("--perfect-masks", action="store_true",
                    help="segment without the front end's error model (no semantic / over- / under-segmentation errors)")
-    g = p.add_argument_group("real RGB-D data (instead of --scene; --policy never only for now)")
-    g.add_argument("--data", metavar="DIR", help="a data set folder: Replica (vMAP or NICE-SLAM layout) or ScanNet")
+    g = p.add_argument_group("real RGB-D data (instead of --scene; the team and the options above run on it, "
+                             "--perfect-masks aside: the masks are the data set's or the geometric segmenter's)")
+    g.add_argument("--data", metavar="DIR", help="a data set folder: Replica (vMAP or NICE-SLAM layout) or ScanNet, "
+                   "cut into --agents contiguous sequences")
     g.add_argument("--kind", choices=("auto", "replica", "nice_slam", "scannet"), default="auto")
     g.add_argument("--gt-mesh", metavar="PLY", help="ground-truth mesh (else a TSDF reference of the frames)")
     g.add_argument("--frames", metavar="A:B:S", help="frames A..B-1 every S-th, before the split into agents")

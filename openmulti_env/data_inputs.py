@@ -1,7 +1,7 @@
-"""What a real RGB-D data set gives a team run: frames per agent, masks per frame, fused instances with
-captions, the ground-truth (or reference) mesh, the semantic ground truth and the viewpoints of the
-culling. Nothing here maps or scores; ``data_run`` does that, and a multi-agent team can take the
-same ``DataInputs``.
+"""What a real RGB-D data set gives a team run: frames per agent, masks per frame with caption features,
+the ground-truth (or reference) mesh, the semantic ground truth and the viewpoints of the culling.
+Nothing here fuses, maps or scores: in ``data_run`` the team (``mapping.team``) fuses each agent's
+frames online, maps and exchanges, and ``data_run`` scores it.
 
 Masks come from the data set when it has instance images (Replica ``semantic_instance/``, ScanNet
 ``instance-filt/``), captioned with the category names of its label file; otherwise from the
@@ -25,10 +25,9 @@ from mapping.data import DatasetError, Frame, RGBDDataset, load_dataset, split_c
 from mapping.data.checks import check_depth_unit, check_poses
 from mapping.data.labels import dataset_categories
 from mapping.evaluate.reference import TSDFConfig, TSDFReference
-from mapping.fusion import FusionConfig, fuse_frames
-from mapping.perception import FrameSegmentation, FusionResult, TextEncoder
+from mapping.perception import FrameSegmentation, TextEncoder
 from mapping.perception.front_end import encode_segments
-from mapping.perception.geometric_segmenter import GeometricSegmenter, instance_caption
+from mapping.perception.geometric_segmenter import GeometricSegmenter
 from mapping.perception.image_encoder import ImageTextEncoder
 from mapping.perception.segmenter import DatasetMaskSegmenter
 from mapping.pointcloud import voxel_downsample
@@ -53,7 +52,6 @@ class DataInputs:
     root: Path
     frames: dict[str, RGBDDataset]
     segmentations: dict[str, list[FrameSegmentation]]
-    fused: dict[str, FusionResult]
     masks: str
     """``dataset`` (the data set's instance images) or ``geometric`` (planes + clusters)."""
     vocabulary: list[str]
@@ -121,9 +119,9 @@ def check_sequence(agents: dict[str, RGBDDataset]) -> None:
 def prepare_inputs(path: str | Path, kind: str = "auto", agents: int = 1, frames: str | None = None,
                    intrinsics: str | None = None, depth_scale: float | None = None, gt_mesh: str | None = None,
                    text_encoder: TextEncoder | None = None, image_encoder: ImageTextEncoder | None = None,
-                   fusion: FusionConfig | None = None, tsdf: TSDFConfig | None = None,
+                   tsdf: TSDFConfig | None = None,
                    culling_edge_m: float = 0.05, seed: int = 0, progress: bool = True) -> DataInputs:
-    """Read, check, segment, caption, encode and fuse every agent's frames; build the ground truth."""
+    """Read, check, segment, caption and encode every agent's frames; build the ground truth."""
     from mapping.perception import shared_text_encoder  # noqa: PLC0415
 
     encoder = text_encoder or shared_text_encoder()
@@ -144,7 +142,7 @@ def prepare_inputs(path: str | Path, kind: str = "auto", agents: int = 1, frames
                      "clusters); semantics are geometric only, F-mIoU/F-mAcc are not scored")
     reference = TSDFReference(tsdf) if gt_mesh is None else None
     labelled = _LabelledPoints(categories) if categories else None
-    segmentations, fused, seg_time, n_frames = {}, {}, 0.0, 0
+    segmentations, seg_time, n_frames = {}, 0.0, 0
     for name, seq in seqs.items():
         segs = []
         for frame in tqdm(seq, total=len(seq), desc=f"{name} perception", unit="frame", disable=not progress):
@@ -158,10 +156,6 @@ def prepare_inputs(path: str | Path, kind: str = "auto", agents: int = 1, frames
             if labelled is not None:
                 labelled.add(frame)
         segmentations[name] = segs
-        fused[name] = fuse_frames(seq, segs, fusion or FusionConfig())
-        if not has_masks:
-            for lid, inst in fused[name].instances.items():
-                inst.caption = instance_caption(inst.caption, lid)
     viewpoints = camera_viewpoints(seqs)
     t0 = time.perf_counter()
     if gt_mesh is not None:
@@ -178,7 +172,7 @@ def prepare_inputs(path: str | Path, kind: str = "auto", agents: int = 1, frames
     gt_time = time.perf_counter() - t0
     semantic_gt = labelled.label_surface(mesh, seed) if labelled is not None else None
     vocabulary = sorted(set(categories.values())) if categories else ["planar surface", "object"]
-    return DataInputs(first.name, first.kind, first.root, seqs, segmentations, fused,
+    return DataInputs(first.name, first.kind, first.root, seqs, segmentations,
                       "dataset" if has_masks else "geometric", vocabulary, mesh, ground_truth, viewpoints,
                       semantic_gt, notes + ([f"categories from {label_file}"] if label_file else []),
                       {"segmenter_per_frame": seg_time / max(n_frames, 1), "ground_truth": gt_time})

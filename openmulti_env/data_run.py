@@ -1,61 +1,89 @@
-"""``openmulti run --data DIR``: map a real RGB-D data set split into K agent sequences, and score it.
+"""``openmulti run --data DIR``: a real RGB-D data set split into K agent sequences, mapped by the
+collaborative team round by round under a scripted policy (as ``openmulti run --scene``), and scored.
 
-    prepare_inputs (data_inputs.py)  ->  align  ->  map every agent  ->  evaluate  ->  write outputs
+    prepare_inputs (data_inputs.py)  ->  one DataStream per agent  ->  Team rounds  ->  evaluate  ->  outputs
 
-The inputs (frames, masks, fused instances, ground truth, viewpoints) come from ``data_inputs``;
-this module only aligns, maps and scores, so a multi-agent team can replace the mapping step
-(``map_agents``) and keep the rest. Until the team exists, only ``--policy never`` maps (every agent
-alone, as ``openmulti run --scene``). Outputs are those of ``run --scene``: ``metrics.json`` (the
-DESIGN.md contract plus ``team``, ``ground_truth``, ``masks``, ``notes``), ``meshes/``, ``codebook/``
-and ``plots/``, and a checkpoint per finished agent (a second run with the same settings resumes).
+The inputs (frames, masks with caption features, ground truth, viewpoints) come from ``data_inputs``;
+the team (``mapping.team``) fuses each agent's frames online, exchanges what the policy asks for and
+aligns arrived instances itself; this module only feeds it the data set and scores every agent's own
+map against the data set's ground truth. Outputs are those of ``run --scene``: ``metrics.json`` (the
+DESIGN.md contract plus ``bytes_per_round``, ``fleet_s``, ``rounds``, ``team``, ``ground_truth``,
+``masks``, ``notes``), ``rounds.json``, ``meshes/``, ``codebook/``, ``plots/`` and the team's
+checkpoint every few rounds (a second run with the same settings resumes after the last saved round).
 """
 
 from __future__ import annotations
 
+import json
 import time
 import warnings
-from dataclasses import replace
+from dataclasses import asdict
 from pathlib import Path
 
-import numpy as np
 import torch
 
-from mapping.agent import MappingAgent
-from mapping.alignment import AlignmentConfig, AlignmentResult, align_agents, no_alignment, oracle_alignment
-from mapping.evaluate import evaluate_mesh, export_scene_mesh, merge_instance_meshes
-from mapping.evaluate.semantic import SemanticMetrics, semantic_metrics, zero_shot_labels
-from mapping.perception import CodeBook, shared_text_encoder
+from mapping.data import Frame
+from mapping.perception import FrameSegmentation, TextEncoder, shared_text_encoder
+from mapping.perception.geometric_segmenter import instance_caption
 from mapping.perception.image_encoder import VisualFeatureNotice, load_image_encoder
+from mapping.runtime import set_threads
+from mapping.team import Team, TeamMember, Vocabulary
 from openmulti_env.data_inputs import DataInputs, prepare_inputs
-from openmulti_env.results import finite_or_none, forget_stale_checkpoints, mean_or_none, write_json_atomic
+from openmulti_env.results import forget_stale_checkpoints
+from openmulti_env.run import (_plain, _run_rounds, mean_metrics, run_team_config, score_member, team_channel,
+                               team_policy, team_results, team_semantics, write_team_outputs)
 from openmulti_env.run_presets import world_config
 from openmulti_env.world.scene import STRUCTURE_CATEGORIES
-from openmulti_env.world.visibility import cull_to_viewpoints
 
-METRIC_KEYS = ("acc_cm", "comp_cm", "comp_ratio", "f_miou", "f_macc")
-ALIGNMENT_MODES = ("none", "paper", "oracle")
-STRUCTURE_PLANE_M = 1.0
-"""A geometric planar instance at least this long in two directions gets the structure networks."""
+PLANAR = "planar surface"
+"""With geometric masks, the vocabulary name whose instances get the structure networks."""
+
+
+class DataStream:
+    """One agent's frames of a data set as a ``mapping.team.AgentStream``: frame ``i`` (decoded from disk
+    when read) and its segmentation (masks with caption features, from ``prepare_inputs``)."""
+
+    def __init__(self, inputs: DataInputs, name: str):
+        self.name = name
+        self.frames, self.segmentations = inputs.frames[name], inputs.segmentations[name]
+
+    def __len__(self) -> int:
+        return len(self.frames)
+
+    def read(self, index: int) -> tuple[Frame, FrameSegmentation]:
+        if not 0 <= index < len(self):
+            raise IndexError(f"{self.name} has frames 0..{len(self) - 1}, not {index}")
+        return self.frames[index], self.segmentations[index]
+
+
+def data_vocabulary(inputs: DataInputs, text_encoder: TextEncoder) -> Vocabulary:
+    """The team's vocabulary: the data set's categories with walls, floors and ceilings as structure;
+    with geometric masks "planar surface" / "object", planar surfaces as structure (wider networks)."""
+    structure = STRUCTURE_CATEGORIES if inputs.masks == "dataset" else (PLANAR,)
+    return Vocabulary.from_encoder(inputs.vocabulary, text_encoder, structure)
 
 
 def run_data(data: str | Path, agents: int, policy: str, preset: str, seed: int, out: Path, *, kind: str = "auto",
              gt_mesh: str | None = None, frames: str | None = None, intrinsics: str | None = None,
-             depth_scale: float | None = None, device: str = "auto", alignment: str = "none",
-             clip_checkpoint: str | None = None) -> dict:
+             depth_scale: float | None = None, device: str = "auto", alignment: str = "paper",
+             clip_checkpoint: str | None = None, comm_budget_mb: float | None = None, consistency: str = "consensus",
+             cross_rendering: bool = True, float16: bool = False, changed_only: float | None = None,
+             threads: int | None = None, checkpoint_every: int = 5, progress: bool = True,
+             max_rounds: int | None = None) -> dict:
     """The whole data-set run; returns the metrics dictionary written to ``out/metrics.json``.
 
     Args:
         data: the data set folder (Replica vMAP or NICE-SLAM layout, or a ScanNet export).
         agents: K contiguous agent sequences.
-        policy: ``never`` only until the multi-agent team lands (each agent maps alone).
+        policy: a scripted policy (always, never, bernoulli:P, round_robin, budget), as ``run``.
         kind, gt_mesh, frames, intrinsics, depth_scale: see ``openmulti run --help``.
-        alignment: ``none``, ``paper`` (sec. III-C) or ``oracle`` (the data set's instance ids; needs masks).
+        alignment: ``paper`` (arrived instances are aligned, sec. III-C) or ``none`` (adopted as new);
+            the team has no ``oracle`` alignment.
+        comm_budget_mb, consistency, cross_rendering, float16, changed_only, threads, checkpoint_every,
+            max_rounds: as ``openmulti_env.run.run``.
     """
-    if policy != "never":
-        raise ValueError(f"run --data: policy {policy!r}: the data-set path does not run through the team yet; "
-                         "use --policy never (each agent maps alone)")
-    if alignment not in ALIGNMENT_MODES:
-        raise ValueError(f"unknown alignment {alignment!r}; choose one of {ALIGNMENT_MODES}")
+    scripted = team_policy(policy, agents, alignment, consistency, comm_budget_mb)
+    set_threads(threads)
     start = time.perf_counter()
     torch.manual_seed(seed)
     with warnings.catch_warnings(record=True) as notices:
@@ -65,128 +93,73 @@ def run_data(data: str | Path, agents: int, policy: str, preset: str, seed: int,
         print(f"[openmulti] note: {notice.message}")
     encoder = shared_text_encoder()
     inputs = prepare_inputs(data, kind, agents, frames, intrinsics, depth_scale, gt_mesh, encoder, image_encoder,
-                            culling_edge_m=world_config(preset, agents).culling_edge_m, seed=seed)
+                            culling_edge_m=world_config(preset, agents).culling_edge_m, seed=seed, progress=progress)
     for note in inputs.notes:
         print(f"[openmulti] note: {note}")
-    settings = {"data": str(Path(data).resolve()), "kind": inputs.kind, "agents": agents, "preset": preset,
-                "seed": seed, "alignment": alignment, "frames": frames, "intrinsics": intrinsics,
-                "depth_scale": depth_scale, "clip_checkpoint": clip_checkpoint}
-    forget_stale_checkpoints(out, settings)
+    settings = {"data": str(Path(data).resolve()), "kind": inputs.kind, "agents": agents, "policy": policy,
+                "preset": preset, "seed": seed, "alignment": alignment, "frames": frames, "intrinsics": intrinsics,
+                "depth_scale": depth_scale, "clip_checkpoint": clip_checkpoint, "comm_budget_mb": comm_budget_mb,
+                "consistency": consistency, "cross_rendering": cross_rendering, "float16": float16,
+                "changed_only": changed_only}
+    config = run_team_config(preset, alignment, consistency, cross_rendering, float16, changed_only)
+    # a checkpoint made under other team settings (library defaults included) is not resumed
+    forget_stale_checkpoints(out, {**settings, "team": json.loads(json.dumps(_plain(asdict(config))))})
     (out / "meshes").mkdir(parents=True, exist_ok=True)
     inputs.gt_mesh.export(out / "meshes" / ("gt_observable.ply" if inputs.ground_truth == "given" else "gt_reference.ply"))
-    aligned = align_inputs(inputs, alignment)
-    labels = zero_shot_labels(aligned.codebook, inputs.vocabulary, encoder, image_encoder)
-    structure = structure_ids(inputs, aligned, labels)
-    mappers = map_agents(inputs, aligned, structure, preset, seed, out, device)
-    result = evaluate_agents(inputs, aligned, labels, mappers, seed, out, shared_ids=alignment != "none")
+    team = Team([DataStream(inputs, name) for name in inputs.frames], config, data_vocabulary(inputs, encoder),
+                seed=seed, channel=team_channel(scripted, comm_budget_mb), device=device)
+    reports = _run_rounds(team, scripted, out / "checkpoints" / "team.pt", checkpoint_every, progress, max_rounds)
+    result = evaluate_team(inputs, team, seed, out, encoder, image_encoder)
     result.update({
-        "bytes_sent_total": int(sum(aligned.bytes_sent.values())), "wall_s": time.perf_counter() - start,
+        **team_results(team, reports),
+        "wall_s": time.perf_counter() - start,
         "ground_truth": inputs.ground_truth, "masks": inputs.masks,
         "timings_s": {k: round(v, 4) for k, v in inputs.timings_s.items()},
-        "config": {**settings, "scene": inputs.name, "policy": policy, "gt_mesh": gt_mesh,
-                   "frames_per_agent": {a: len(s) for a, s in inputs.frames.items()}},
+        "config": {**settings, "scene": inputs.name, "gt_mesh": gt_mesh,
+                   "frames_per_agent": {a: len(s) for a, s in inputs.frames.items()}, "team": _plain(asdict(config))},
         "notes": " ".join(inputs.notes + [
+            "Per-agent metrics: each agent's own map against the whole ground truth; mean = their average. "
             "Meshes are culled to what the cameras' positions (25 cm apart) can see, occlusion included; "
-            "acc_cm_unculled scores the whole reconstruction. Policy never: each agent maps alone."]),
+            "*_unculled score the whole reconstruction. bytes_* count the serialised parameter and ray messages. "
+            "fleet_s: per round, the slowest agent's local phase + the exchange + the slowest consistency "
+            "phase, summed."]),
     })
-    write_json_atomic(out / "metrics.json", result)
+    write_team_outputs(out, result, reports, f"{inputs.name}: policy {policy}")
     return result
 
 
-def align_inputs(inputs: DataInputs, mode: str) -> AlignmentResult:
-    """Global ids for every agent's instances: ``none``, ``paper`` (sec. III-C) or ``oracle``."""
-    args = (inputs.fused, inputs.frames, inputs.segmentations)
-    if mode == "paper":
-        return align_agents(*args, config=AlignmentConfig())
-    if mode == "oracle":
-        if inputs.masks != "dataset":
-            raise ValueError("--alignment oracle needs the data set's instance masks (the ids are the oracle)")
-        return oracle_alignment(*args)
-    return no_alignment(*args)
-
-
-def structure_ids(inputs: DataInputs, aligned: AlignmentResult, labels: dict[int, str]) -> set[int]:
-    """Ids mapped with the wider structure networks: walls, floors and ceilings by label, or, with
-    geometric masks, planar instances that span at least 1 m in two directions."""
-    if inputs.masks == "dataset":
-        return {i for i in aligned.codebook if labels.get(i) in STRUCTURE_CATEGORIES}
-    out = set()
-    for agent in aligned.agents.values():
-        for gid, inst in agent.instances.items():
-            extent = np.sort(np.ptp(inst.points, axis=0)) if len(inst.points) else np.zeros(3)
-            if aligned.codebook[gid].caption.startswith("planar surface") and extent[1] >= STRUCTURE_PLANE_M:
-                out.add(gid)
-    return out
-
-
-def map_agents(inputs: DataInputs, aligned: AlignmentResult, structure: set[int], preset: str, seed: int,
-               out: Path, device: str) -> dict[str, MappingAgent]:
-    """The mapping step: every agent maps its frames on its corrected masks, alone (policy never).
-
-    This is the seam for the multi-agent team: it takes the inputs' frames and the alignment's
-    per-frame label images and returns one mapper per agent.
-    """
-    from openmulti_env.run import map_agent  # noqa: PLC0415  (run.py owns the single-agent mapping loop)
-
-    return {name: map_agent(inputs.frames[name], aligned.agents[name].corrected_labels, structure.__contains__,
-                            name, preset, seed * 100 + a, out / "checkpoints" / f"{name}.pt", device)
-            for a, name in enumerate(inputs.frames)}
-
-
-def evaluate_agents(inputs: DataInputs, aligned: AlignmentResult, labels: dict[int, str],
-                    mappers: dict[str, MappingAgent], seed: int, out: Path, shared_ids: bool = False) -> dict:
-    """Mesh, cull and score every agent's map; write meshes, code books and pictures (a team code book
-    only when ``shared_ids``: after alignment the agents' ids name the same objects)."""
-    gt = inputs.gt_mesh
-    per_agent, meshes, team_points, team_ids = {}, [], [], []
-    for name, mapper in mappers.items():
-        mesh, ids = merge_instance_meshes(mapper.instance_meshes())
-        has_mesh = len(mesh.faces) > 0
-        if has_mesh:
-            export_scene_mesh(out / "meshes" / f"{name}.ply", mesh, ids)
-            team_points.append(np.asarray(mesh.vertices))
-            team_ids.append(ids)
-        _labelled(aligned.agents[name].codebook, labels).save(out / "codebook", name)
-        semantic = _semantics(inputs, np.asarray(mesh.vertices), ids, labels)
-        culled = cull_to_viewpoints(mesh, inputs.viewpoints) if has_mesh else None
-        metrics = evaluate_mesh(culled if culled is not None and len(culled.faces) else None, gt, seed=seed)
-        raw = evaluate_mesh(mesh if has_mesh else None, gt, seed=seed)
-        per_agent[name] = {"acc_cm": finite_or_none(metrics.acc_cm), "comp_cm": finite_or_none(metrics.comp_cm),
-                           "comp_ratio": float(metrics.comp_ratio),
-                           "f_miou": None if semantic is None else semantic.f_miou,
-                           "f_macc": None if semantic is None else semantic.f_macc,
-                           "acc_cm_unculled": finite_or_none(raw.acc_cm), "instances": len(mapper.slots)}
-        meshes.append(mesh)
-        _save_rendered_views(out / "plots" / f"rendered_views_{name}.png", inputs, name, mapper)
-    team = _semantics(inputs, np.concatenate(team_points) if team_points else np.zeros((0, 3)),
-                      np.concatenate(team_ids) if team_ids else np.zeros(0, np.int64), labels)
-    team_book = out / "codebook"
-    if shared_ids:
-        _labelled(aligned.codebook, labels).save(team_book, "team")
-    else:
-        for suffix in (".json", ".npz"):
-            (team_book / f"team{suffix}").unlink(missing_ok=True)
+def evaluate_team(inputs: DataInputs, team: Team, seed: int, out: Path, encoder, image_encoder) -> dict:
+    """Mesh, cull and score every agent's own map against the data set's ground truth (F-mIoU / F-mAcc
+    where it has categories); write meshes, code books (geometric instances named "planar surface K" /
+    "object K") and pictures."""
+    caption = (lambda iid, text: instance_caption(text, iid)) if inputs.masks == "geometric" else None
+    per_agent, maps = {}, []
+    for member in team.members:
+        per_agent[member.name], own = score_member(member, inputs.vocabulary, inputs.gt_mesh, inputs.viewpoints, None,
+                                                   seed, out, encoder, image_encoder, inputs.semantic_gt, caption)
+        maps.append(own)
+        _save_rendered_views(out / "plots" / f"rendered_views_{member.name}.png", inputs, member)
+    union = team_semantics(maps, inputs.semantic_gt, out)
     from openmulti_env.world.plots import save_reconstruction_views, save_semantic_classes  # noqa: PLC0415
 
-    save_reconstruction_views(out / "plots" / "reconstruction_top_down.png", gt, meshes)
-    if team is not None:
-        save_semantic_classes(out / "plots" / "semantic_per_class.png", team, f"{inputs.name}: team map")
-    return {"agents": per_agent,
-            "mean": {k: mean_or_none([m[k] for m in per_agent.values()]) for k in METRIC_KEYS},
-            "team": {"f_miou": None if team is None else team.f_miou, "f_macc": None if team is None else team.f_macc,
-                     "global_instances": len(aligned.codebook),
-                     "per_class": [] if team is None else team.as_dict()["per_class"]}}
-
+    save_reconstruction_views(out / "plots" / "reconstruction_top_down.png", inputs.gt_mesh, [m.mesh for m in maps])
+    if union is not None:
+        save_semantic_classes(out / "plots" / "semantic_per_class.png", union, f"{inputs.name}: all agents' maps")
+    return {"agents": per_agent, "mean": mean_metrics(per_agent),
+            "team": {"f_miou": None if union is None else union.f_miou,
+                     "f_macc": None if union is None else union.f_macc,
+                     "per_class": [] if union is None else union.as_dict()["per_class"]}}
 
 
 def summary_lines(result: dict) -> list[str]:
     """The table printed at the end of a data-set run."""
     fmt = lambda x: "-" if x is None else f"{x:.2f}"  # noqa: E731
     lines = [f"{'agent':<10} {'acc [cm]':>9} {'comp [cm]':>10} {'comp ratio [%]':>15} {'F-mIoU':>7} {'F-mAcc':>7} "
-             f"{'instances':>10}"]
+             f"{'instances':>10} {'compute [s]':>12}"]
     for name, m in result["agents"].items():
         lines.append(f"{name:<10} {fmt(m['acc_cm']):>9} {fmt(m['comp_cm']):>10} {fmt(m['comp_ratio']):>15} "
-                     f"{fmt(m['f_miou']):>7} {fmt(m['f_macc']):>7} {m['instances']:>10}")
+                     f"{fmt(m['f_miou']):>7} {fmt(m['f_macc']):>7} {m['instances']:>10} "
+                     f"{result['compute_s'][name]:>12.1f}")
     mean = result["mean"]
     lines.append(f"{'mean':<10} {fmt(mean['acc_cm']):>9} {fmt(mean['comp_cm']):>10} {fmt(mean['comp_ratio']):>15} "
                  f"{fmt(mean['f_miou']):>7} {fmt(mean['f_macc']):>7}")
@@ -197,25 +170,15 @@ def summary_lines(result: dict) -> list[str]:
     return lines
 
 
-def _semantics(inputs: DataInputs, points: np.ndarray, ids: np.ndarray, labels: dict[int, str]) -> SemanticMetrics | None:
-    if inputs.semantic_gt is None:
-        return None
-    return semantic_metrics(*inputs.semantic_gt, points, ids, labels)
-
-
-def _labelled(book: CodeBook, labels: dict[int, str]) -> CodeBook:
-    return CodeBook({i: replace(entry, label=labels.get(i)) for i, entry in book.items()})
-
-
-def _save_rendered_views(path: Path, inputs: DataInputs, name: str, mapper: MappingAgent) -> None:
+def _save_rendered_views(path: Path, inputs: DataInputs, member: TeamMember) -> None:
     """Two frames of the agent: the sensor's RGB and depth beside the map rendered from the same pose."""
     from openmulti_env.world.plots import save_view_comparison  # noqa: PLC0415
 
-    seq = inputs.frames[name]
+    seq = inputs.frames[member.name]
     stride = max(1, seq.intrinsics.width // 80)
     views = []
     for i in sorted({len(seq) // 3, 2 * len(seq) // 3}):
         frame = seq[i]
-        rendered = mapper.render_view(frame.pose, frame.intrinsics, stride=stride)
+        rendered = member.mapper.render_view(frame.pose, frame.intrinsics, stride=stride)
         views.append((frame, rendered.colour.cpu().numpy(), rendered.depth.cpu().numpy()))
-    save_view_comparison(path, views, stride, f"{inputs.name} {name}: sensor vs map")
+    save_view_comparison(path, views, stride, f"{inputs.name} {member.name}: sensor vs map")

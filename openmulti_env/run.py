@@ -4,8 +4,9 @@ write results.
 Each round every agent reads its next frames (rendered, segmented with the seeded error model,
 captioned, fused online), trains, and exchanges what the policy asks for through the channel
 (``mapping.team``); the team is checkpointed every few rounds, so an interrupted run started again
-with the same ``out`` directory and settings resumes after the last saved round. ``map_agent`` (one
-agent mapping a list of frames alone) serves the dataset path.
+with the same ``out`` directory and settings resumes after the last saved round. The data-set path
+(``openmulti_env.data_run``) drives the same team through ``team_policy``, ``run_team_config``,
+``_run_rounds``, ``team_results`` and ``write_team_outputs``.
 """
 
 from __future__ import annotations
@@ -13,24 +14,24 @@ from __future__ import annotations
 import json
 import time
 import warnings
-from dataclasses import asdict, replace
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Callable
 
 import numpy as np
 import torch
+import trimesh
 from tqdm import tqdm
 
 from mapping.agent import MappingAgent, MappingConfig
 from mapping.field import OBJECT_FIELD
 from mapping.runtime import available_cores, set_threads
-from mapping.team import ChannelConfig, ConsistencyConfig, ExchangeConfig, Team
+from mapping.team import ChannelConfig, ConsistencyConfig, ExchangeConfig, Team, TeamConfig, TeamMember
 from mapping.team.consistency import CONSISTENCY_ALGORITHMS
 from mapping.team.global_map import global_rays_for, scene_frame
 from mapping.checkpoint import CheckpointError
-from mapping.data import Frame
 from mapping.evaluate import export_scene_mesh, merge_instance_meshes
-from mapping.evaluate.semantic import semantic_metrics, zero_shot_labels
+from mapping.evaluate.semantic import SemanticMetrics, semantic_metrics, zero_shot_labels
 from mapping.perception import CodeBook, shared_text_encoder
 from mapping.perception.errors import SegmentationErrorConfig
 from mapping.perception.image_encoder import VisualFeatureNotice, load_image_encoder
@@ -51,27 +52,6 @@ GLOBAL_WIDTH = 128
 RUN_ALIGNMENT_MODES = ("paper", "none")
 TEAM_ID_STRIDE = 100_000
 """Agent k's instance i is ``k * TEAM_ID_STRIDE + i`` in the union of all agents' maps."""
-
-
-def map_agent(frames: list[Frame], labels_of: Callable[[int], np.ndarray], is_structure: Callable[[int], bool],
-              name: str, preset: str, seed: int, checkpoint: Path, device: str) -> MappingAgent:
-    """Map one agent's frames on its (corrected) instance masks, or reload its finished map."""
-    mapper = MappingAgent(mapping_config(preset), is_structure=is_structure, device=device, seed=seed)
-    if checkpoint.is_file():
-        try:
-            mapper.load(checkpoint)
-            print(f"[openmulti] {name}: resumed its finished map from {checkpoint}")
-            return mapper
-        except CheckpointError as exc:
-            print(f"[openmulti] {name}: ignoring unusable checkpoint ({exc}); mapping again")
-    with tqdm(total=len(frames), desc=f"{name} mapping", unit="frame") as bar:
-        for frame in frames:
-            if mapper.ingest(frame, labels_of(frame.index)):
-                loss = mapper.train()
-                bar.set_postfix(loss=f"{loss:.3f}", instances=len(mapper.slots))
-            bar.update(1)
-    mapper.save(checkpoint)
-    return mapper
 
 
 def run(scene: str, agents: int, policy: str, preset: str, seed: int, out: Path, device: str = "auto",
@@ -106,12 +86,7 @@ def run(scene: str, agents: int, policy: str, preset: str, seed: int, out: Path,
             one per core when ``threads`` is not given (each with 1 torch thread: small batches use one
             core better than two), else 1.
     """
-    spec = parse_policy(policy)
-    if alignment not in RUN_ALIGNMENT_MODES:
-        raise ValueError(f"unknown alignment {alignment!r} for a team run; choose one of {RUN_ALIGNMENT_MODES} "
-                         "(the ground-truth 'oracle' alignment is in benchmarks/bench_alignment.py)")
-    if consistency not in CONSISTENCY_ALGORITHMS:
-        raise ValueError(f"unknown consistency {consistency!r}; choose one of {CONSISTENCY_ALGORITHMS}")
+    scripted = team_policy(policy, agents, alignment, consistency, comm_budget_mb)
     if workers is None:
         workers = min(available_cores(), agents) if threads is None else 1
     if workers < 1:
@@ -136,49 +111,89 @@ def run(scene: str, agents: int, policy: str, preset: str, seed: int, out: Path,
           f"{world.num_agents} agent(s), {sum(len(p) for p in world.agent_poses)} frames")
     encoder = shared_text_encoder()
     mapping, map_info = _map_structure(world, preset, global_map, global_width)
-    config = team_config(preset, mapping=mapping, alignment=alignment == "paper", global_map=global_map,
-                         consistency=ConsistencyConfig(algorithm=consistency, cross_rendering=cross_rendering),
-                         exchange=ExchangeConfig(float16=float16, changed_only=changed_only,
-                                                 point_clouds=share_point_clouds))
+    config = run_team_config(preset, alignment, consistency, cross_rendering, float16, changed_only, mapping=mapping,
+                             global_map=global_map, share_point_clouds=share_point_clouds)
     # the checkpoints must come from the same team settings too, defaults included: a run made before
     # a default changed (e.g. eq. 13's) is mapped again, not resumed into a mix of two versions
     forget_stale_checkpoints(out, {**settings, "team": json.loads(json.dumps(_plain(asdict(config))))})
-    budget = None if comm_budget_mb is None else comm_budget_mb * 1e6
     team = Team(world_streams(world, seed, segmentation_errors, text_encoder=encoder, image_encoder=image_encoder),
                 config, world_vocabulary(world, encoder), seed=seed,
-                channel=ChannelConfig(spec.success_probability, budget), device=device, workers=workers)
+                channel=team_channel(scripted, comm_budget_mb), device=device, workers=workers)
     try:
-        reports = _run_rounds(team, ScriptedPolicy(spec, world.num_agents), out / "checkpoints" / "team.pt",
-                              checkpoint_every, progress, max_rounds)
+        reports = _run_rounds(team, scripted, out / "checkpoints" / "team.pt", checkpoint_every, progress, max_rounds)
     finally:
         team.close()  # the worker threads (the team stays usable for evaluation)
     set_threads(threads)  # evaluation runs on this thread alone: give it every core again
     views = agents_camera_views(world, config.mapping.keyframe_every) if three_cullings else None
     result = _evaluate(world, team, seed, out, encoder, image_encoder, views, plots)
-    bytes_per_round = [int(sum(r["bytes_sent"])) for r in reports]
     result.update({
-        "bytes_sent_total": int(team.channel.bytes_sent.sum()),
-        "bytes_per_round": bytes_per_round,
-        "bytes_per_link_total": team.channel.link_bytes.tolist(),
-        "bytes_per_round_per_agent_mean": float(np.mean(bytes_per_round) / max(world.num_agents, 1)) if reports else 0.0,
-        "messages": {k: int(sum(r[k] for r in reports)) for k in ("delivered", "dropped", "over_budget")},
-        "fleet_s": float(sum(r["fleet_s"] for r in reports)),
-        "compute_s": {f"agent_{a}": float(sum(r["compute_s"][a] for r in reports)) for a in range(world.num_agents)},
-        "rounds": len(reports),
+        **team_results(team, reports),
         "map": map_info,
         "wall_s": time.perf_counter() - start,
         "config": {**settings, "error_rates": asdict(SegmentationErrorConfig() if segmentation_errors
                                                      else SegmentationErrorConfig.none()),
                    "team": _plain(asdict(config))},
     })
+    write_team_outputs(out, result, reports, f"{world.scene.name}: policy {policy}", plots)
+    world.close()
+    return result
+
+
+def team_policy(policy: str, agents: int, alignment: str, consistency: str,
+                comm_budget_mb: float | None) -> ScriptedPolicy:
+    """The scripted policy of a team run, after checking the options (ValueError naming the problem)."""
+    spec = parse_policy(policy)
+    if alignment not in RUN_ALIGNMENT_MODES:
+        raise ValueError(f"unknown alignment {alignment!r} for a team run; choose one of {RUN_ALIGNMENT_MODES} "
+                         "(the team has no ground-truth 'oracle' alignment; it is in benchmarks/bench_alignment.py)")
+    if consistency not in CONSISTENCY_ALGORITHMS:
+        raise ValueError(f"unknown consistency {consistency!r}; choose one of {CONSISTENCY_ALGORITHMS}")
+    if comm_budget_mb is not None and not comm_budget_mb >= 0:
+        raise ValueError(f"--comm-budget-mb must be >= 0, got {comm_budget_mb}")
+    if spec.rule == "budget" and comm_budget_mb is None:
+        raise ValueError("policy 'budget' needs --comm-budget-mb MB (the megabytes each agent may send over the run)")
+    return ScriptedPolicy(spec, agents)
+
+
+def team_channel(policy: ScriptedPolicy, comm_budget_mb: float | None) -> ChannelConfig:
+    """The links of a run: the policy's success probability, ``comm_budget_mb`` per agent (None: unlimited)."""
+    return ChannelConfig(policy.spec.success_probability, None if comm_budget_mb is None else comm_budget_mb * 1e6)
+
+
+def run_team_config(preset: str, alignment: str, consistency: str, cross_rendering: bool, float16: bool,
+                    changed_only: float | None, mapping: MappingConfig | None = None, global_map: bool = False,
+                    share_point_clouds: bool = False) -> TeamConfig:
+    """The team settings of a run from its command-line options (on the preset's ``team_config``)."""
+    return team_config(preset, mapping=mapping, alignment=alignment == "paper", global_map=global_map,
+                       consistency=ConsistencyConfig(algorithm=consistency, cross_rendering=cross_rendering),
+                       exchange=ExchangeConfig(float16=float16, changed_only=changed_only,
+                                               point_clouds=share_point_clouds))
+
+
+def team_results(team: Team, reports: list[dict]) -> dict:
+    """What the rounds cost: bytes (total, per round, per link), messages, fleet and compute seconds."""
+    n = team.num_agents
+    bytes_per_round = [int(sum(r["bytes_sent"])) for r in reports]
+    return {
+        "bytes_sent_total": int(team.channel.bytes_sent.sum()),
+        "bytes_per_round": bytes_per_round,
+        "bytes_per_link_total": team.channel.link_bytes.tolist(),
+        "bytes_per_round_per_agent_mean": float(np.mean(bytes_per_round) / max(n, 1)) if reports else 0.0,
+        "messages": {k: int(sum(r[k] for r in reports)) for k in ("delivered", "dropped", "over_budget")},
+        "fleet_s": float(sum(r["fleet_s"] for r in reports)),
+        "compute_s": {f"agent_{a}": float(sum(r["compute_s"][a] for r in reports)) for a in range(n)},
+        "rounds": len(reports),
+    }
+
+
+def write_team_outputs(out: Path, result: dict, reports: list[dict], title: str, plots: bool = True) -> None:
+    """``rounds.json``, ``metrics.json`` and (with ``plots``) the bytes-per-round picture."""
     write_json_atomic(out / "rounds.json", {"rounds": reports})
     write_json_atomic(out / "metrics.json", result)
     if plots:
         from openmulti_env.world.plots import save_round_bytes  # noqa: PLC0415
 
-        save_round_bytes(out / "plots" / "bytes_per_round.png", reports, f"{world.scene.name}: policy {policy}")
-    world.close()
-    return result
+        save_round_bytes(out / "plots" / "bytes_per_round.png", reports, title)
 
 
 def _map_structure(world: World, preset: str, global_map: bool, width: int) -> tuple[MappingConfig, dict]:
@@ -237,49 +252,88 @@ def _evaluate(world: World, team: Team, seed: int, out: Path, encoder, image_enc
     paper's per-agent metrics, averaged); the team map's semantics; code books; pictures."""
     vocabulary = category_vocabulary(world)
     gt = world.surface.culled_mesh()
-    gt_points, gt_labels = semantic_ground_truth(world, 200_000, seed)
+    semantic_gt = semantic_ground_truth(world, 200_000, seed)
     (out / "meshes").mkdir(parents=True, exist_ok=True)
     gt.export(out / "meshes" / "gt_observable.ply")
-    per_agent, meshes, team_points, team_ids, team_labels = {}, [], [], [], {}
+    per_agent, maps = {}, []
     for member in tqdm(team.members, desc="evaluating", unit="agent"):
-        name, mapper = member.name, member.mapper
-        book = member.codebook()
-        labels = zero_shot_labels(book, vocabulary, encoder, image_encoder) if book else {}
-        mesh, ids = merge_instance_meshes(mapper.instance_meshes())
-        has_mesh = len(mesh.faces) > 0
-        if has_mesh:
-            export_scene_mesh(out / "meshes" / f"{name}.ply", mesh, ids)
-            team_points.append(np.asarray(mesh.vertices))
-            team_ids.append(ids + member.index * TEAM_ID_STRIDE)
-            team_labels.update({iid + member.index * TEAM_ID_STRIDE: lab for iid, lab in labels.items()})
-        _labelled(book, labels).save(out / "codebook", name)
-        semantic = semantic_metrics(gt_points, gt_labels, np.asarray(mesh.vertices), ids, labels)
         # score what free space can see of the reconstruction, as the ground truth is culled (README);
         # also NICE-SLAM-culled when asked, and unculled
-        scores = score_three_ways(mesh if has_mesh else None, gt, world.surface.viewpoints, views, seed)
-        adopted = sum(1 for i in mapper.live_ids() if not mapper.keyframes.has_pixels(i))
-        per_agent[name] = {**scores, "f_miou": semantic.f_miou, "f_macc": semantic.f_macc,
-                           "instances": len(mapper.live_ids()), "instances_without_own_pixels": adopted}
-        meshes.append(mesh)
+        per_agent[member.name], own = score_member(member, vocabulary, gt, world.surface.viewpoints, views, seed, out,
+                                                   encoder, image_encoder, semantic_gt)
+        maps.append(own)
         if plots:
-            _save_rendered_views(out / "plots" / f"rendered_views_{name}.png", world, member.index, mapper)
-    for suffix in (".json", ".npz"):  # agents' ids are their own: no team code book answers queries
-        (out / "codebook" / f"team{suffix}").unlink(missing_ok=True)
-    union = semantic_metrics(gt_points, gt_labels, np.concatenate(team_points) if team_points else np.zeros((0, 3)),
-                             np.concatenate(team_ids) if team_ids else np.zeros(0, np.int64), team_labels)
+            _save_rendered_views(out / "plots" / f"rendered_views_{member.name}.png", world, member.index, member.mapper)
+    union = team_semantics(maps, semantic_gt, out)
     if plots:
         from openmulti_env.world.plots import save_reconstruction_views, save_semantic_classes  # noqa: PLC0415
 
-        save_reconstruction_views(out / "plots" / "reconstruction_top_down.png", gt, meshes)
+        save_reconstruction_views(out / "plots" / "reconstruction_top_down.png", gt, [m.mesh for m in maps])
         save_semantic_classes(out / "plots" / "semantic_per_class.png", union, f"{world.scene.name}: all agents' maps")
-    keys = [k for k in METRIC_KEYS + CULLING_KEYS if all(k in m for m in per_agent.values())]
-    return {"agents": per_agent, "mean": {k: mean_or_none([m[k] for m in per_agent.values()]) for k in keys},
+    return {"agents": per_agent, "mean": mean_metrics(per_agent),
             "team": {"f_miou": union.f_miou, "f_macc": union.f_macc, "per_class": union.as_dict()["per_class"]},
             "notes": "Per-agent metrics: each agent's own map against the whole observable ground truth; mean = "
                      "their average (as the paper). Meshes are culled to what the free-space viewpoints can see; "
                      "acc_cm_unculled scores the whole reconstruction (and *_nice NICE-SLAM-culled, when asked). bytes_* count the serialised parameter and "
                      "ray messages (and the clouds inside them). fleet_s: per round, the slowest agent's local "
                      "phase + the exchange + the slowest consistency phase, summed."}
+
+
+@dataclass
+class MemberMap:
+    """One agent's meshed map: the mesh, each vertex's instance id, the instances' zero-shot labels."""
+
+    index: int
+    mesh: trimesh.Trimesh
+    ids: np.ndarray
+    labels: dict[int, str]
+
+
+def score_member(member: TeamMember, vocabulary: list[str], gt: trimesh.Trimesh, viewpoints: np.ndarray,
+                 views: CameraViews | None, seed: int, out: Path, encoder, image_encoder,
+                 semantic_gt: tuple[np.ndarray, np.ndarray] | None,
+                 caption: Callable[[int, str], str] | None = None) -> tuple[dict, MemberMap]:
+    """Mesh one member's own map (``out/meshes/<name>.ply``), label its code book against ``vocabulary``
+    (``out/codebook/<name>``; ``caption(id, caption)`` renames the captions written), score it against
+    ``gt`` culled to ``viewpoints`` (``score_three_ways``) and, with ``semantic_gt`` (points, categories),
+    its F-mIoU / F-mAcc (else None)."""
+    name, mapper = member.name, member.mapper
+    book = member.codebook()
+    labels = zero_shot_labels(book, vocabulary, encoder, image_encoder) if book else {}
+    mesh, ids = merge_instance_meshes(mapper.instance_meshes())
+    has_mesh = len(mesh.faces) > 0
+    if has_mesh:
+        export_scene_mesh(out / "meshes" / f"{name}.ply", mesh, ids)
+    _labelled(book, labels, caption).save(out / "codebook", name)
+    semantic = None if semantic_gt is None else semantic_metrics(*semantic_gt, np.asarray(mesh.vertices), ids, labels)
+    scores = score_three_ways(mesh if has_mesh else None, gt, viewpoints, views, seed)
+    adopted = sum(1 for i in mapper.live_ids() if not mapper.keyframes.has_pixels(i))
+    return ({**scores, "f_miou": None if semantic is None else semantic.f_miou,
+             "f_macc": None if semantic is None else semantic.f_macc,
+             "instances": len(mapper.live_ids()), "instances_without_own_pixels": adopted},
+            MemberMap(member.index, mesh, ids, labels))
+
+
+def team_semantics(maps: list[MemberMap], semantic_gt: tuple[np.ndarray, np.ndarray] | None,
+                   out: Path) -> SemanticMetrics | None:
+    """F-mIoU / F-mAcc of all agents' maps together (agent k's instance i is ``k * TEAM_ID_STRIDE + i``);
+    None without ``semantic_gt``. Agents' ids are their own, so no team code book answers queries: an
+    older one in ``out/codebook`` is removed."""
+    for suffix in (".json", ".npz"):
+        (out / "codebook" / f"team{suffix}").unlink(missing_ok=True)
+    if semantic_gt is None:
+        return None
+    meshed = [m for m in maps if len(m.mesh.faces)]
+    points = np.concatenate([np.asarray(m.mesh.vertices) for m in meshed]) if meshed else np.zeros((0, 3))
+    ids = np.concatenate([m.ids + m.index * TEAM_ID_STRIDE for m in meshed]) if meshed else np.zeros(0, np.int64)
+    labels = {iid + m.index * TEAM_ID_STRIDE: lab for m in meshed for iid, lab in m.labels.items()}
+    return semantic_metrics(*semantic_gt, points, ids, labels)
+
+
+def mean_metrics(per_agent: dict[str, dict]) -> dict:
+    """The mean over agents of every metric all agents have (``METRIC_KEYS`` and the other cullings')."""
+    keys = [k for k in METRIC_KEYS + CULLING_KEYS if all(k in m for m in per_agent.values())]
+    return {k: mean_or_none([m[k] for m in per_agent.values()]) for k in keys}
 
 
 def _plain(value):
@@ -292,9 +346,11 @@ def _plain(value):
 
 
 
-def _labelled(book: CodeBook, labels: dict[int, str]) -> CodeBook:
-    """A copy of ``book`` whose entries carry their zero-shot labels."""
-    return CodeBook({i: replace(entry, label=labels.get(i)) for i, entry in book.items()})
+def _labelled(book: CodeBook, labels: dict[int, str], caption: Callable[[int, str], str] | None = None) -> CodeBook:
+    """A copy of ``book`` whose entries carry their zero-shot labels (and ``caption(id, caption)``'s captions)."""
+    return CodeBook({i: replace(entry, label=labels.get(i), **({} if caption is None else
+                                                                {"caption": caption(i, entry.caption)}))
+                     for i, entry in book.items()})
 
 
 def _save_rendered_views(path: Path, world: World, agent: int, mapper: MappingAgent, stride: int = 4) -> None:

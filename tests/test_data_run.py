@@ -1,4 +1,5 @@
-"""``openmulti run --data`` end to end on the tiny committed data sets (tests/fixtures), and bad input."""
+"""``openmulti run --data`` end to end on the tiny committed data sets (tests/fixtures): the team under
+scripted policies, resuming, and bad input."""
 
 from __future__ import annotations
 
@@ -13,7 +14,7 @@ import pytest
 
 from mapping.data import DatasetError, DatasetWarning
 from openmulti_env.cli import main
-from openmulti_env.data_run import forget_stale_checkpoints
+from openmulti_env.data_run import forget_stale_checkpoints, run_data
 from openmulti_env.data_inputs import check_sequence, load_agents, load_gt_mesh, parse_frames, parse_intrinsics
 
 FIXTURES = Path(__file__).parent / "fixtures"
@@ -21,8 +22,8 @@ REPLICA, SCANNET, NICE_SLAM = FIXTURES / "replica_tiny", FIXTURES / "scene0000_0
 KEYS = {"acc_cm", "comp_cm", "comp_ratio", "f_miou", "f_macc"}
 
 
-def _run(out: Path, data: Path, *extra: str) -> dict:
-    args = ["run", "--data", str(data), "--preset", "tiny", "--policy", "never", "--device", "cpu", "--out", str(out)]
+def _run(out: Path, data: Path, *extra: str, policy: str = "never") -> dict:
+    args = ["run", "--data", str(data), "--preset", "tiny", "--policy", policy, "--device", "cpu", "--out", str(out)]
     assert main(args + list(extra)) == 0
     return json.loads((out / "metrics.json").read_text())
 
@@ -34,34 +35,63 @@ def _query(capsys, out: Path, text: str) -> dict:
     return json.loads(printed[printed.index("{"):])
 
 
-def test_replica_with_masks_and_mesh_writes_the_run_contract_and_answers_queries(tmp_path, capsys):
+def test_replica_team_always_writes_the_run_contract_and_answers_queries(tmp_path, capsys):
     out = tmp_path / "replica"
-    metrics = _run(out, REPLICA, "--agents", "2", "--gt-mesh", str(REPLICA / "mesh.ply"))
+    metrics = _run(out, REPLICA, "--agents", "2", "--gt-mesh", str(REPLICA / "mesh.ply"), policy="always")
     text = capsys.readouterr().out
-    assert "given ground-truth mesh" in text and "TSDF" not in text
+    assert "given ground-truth mesh" in text and "TSDF" not in text and "fleet time" in text
     assert set(metrics["agents"]) == {"agent_0", "agent_1"} and KEYS <= set(metrics["mean"])
     for m in metrics["agents"].values():
         assert KEYS <= set(m) and 0 < m["comp_ratio"] <= 100 and m["acc_cm"] > 0
         assert 0 < m["f_miou"] <= 100 and 0 < m["f_macc"] <= 100
     assert metrics["ground_truth"] == "given" and metrics["masks"] == "dataset"
     assert metrics["config"]["frames_per_agent"] == {"agent_0": 6, "agent_1": 6}
-    # the default alignment (paper) exchanges the instances' clouds once; their bytes are counted
-    assert metrics["bytes_sent_total"] > 0 and metrics["wall_s"] > 0 and metrics["config"]["policy"] == "never"
+    # the team ran its rounds (6 frames per agent, 4 per round on tiny) and talked in every one
+    assert metrics["config"]["policy"] == "always" and metrics["config"]["team"]["alignment"] is True
+    assert metrics["rounds"] == len(metrics["bytes_per_round"]) == 2 and metrics["fleet_s"] > 0
+    assert metrics["bytes_sent_total"] == sum(metrics["bytes_per_round"]) > 0 and min(metrics["bytes_per_round"]) > 0
+    assert metrics["messages"] == {"delivered": 2 * 2 * 2, "dropped": 0, "over_budget": 0} and metrics["wall_s"] > 0
+    assert len(json.loads((out / "rounds.json").read_text())["rounds"]) == 2
     for name in ("meshes/gt_observable.ply", "meshes/agent_1.ply", "codebook/agent_0.json",
-                 "plots/reconstruction_top_down.png", "plots/rendered_views_agent_1.png", "plots/semantic_per_class.png"):
+                 "plots/reconstruction_top_down.png", "plots/rendered_views_agent_1.png", "plots/semantic_per_class.png",
+                 "plots/bytes_per_round.png"):
         assert (out / name).stat().st_size > 0, name
     classes = {o["class_name"] for o in json.loads((REPLICA / "info_semantic.json").read_text())["objects"]}
     book = json.loads((out / "codebook" / "agent_0.json").read_text())["instances"]
     assert book and {e["caption"] for e in book} <= classes  # captions = the data set's names
     hits = _query(capsys, out, "the floor")
     assert hits["results"][0]["category"] == "floor"
-    # checkpoints of the finished maps are kept for the same settings only
-    assert (out / "checkpoints" / "agent_1.pt").exists()
+    # the team's checkpoint is kept for the same settings only
+    assert (out / "checkpoints" / "team.pt").exists()
     settings = json.loads((out / "checkpoints" / "run_settings.json").read_text())
     forget_stale_checkpoints(out, settings)
-    assert (out / "checkpoints" / "agent_1.pt").exists()
-    forget_stale_checkpoints(out, {**settings, "seed": 1})
-    assert not (out / "checkpoints" / "agent_1.pt").exists()
+    assert (out / "checkpoints" / "team.pt").exists()
+    forget_stale_checkpoints(out, {**settings, "policy": "never"})
+    assert not (out / "checkpoints" / "team.pt").exists()
+
+
+def test_bernoulli_team_run_interrupted_after_a_round_resumes(tmp_path, capsys, monkeypatch):
+    import openmulti_env.data_run as data_run
+
+    out, mesh = tmp_path / "lossy", str(REPLICA / "mesh.ply")
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    with monkeypatch.context() as m:  # the run stops after round 1 was checkpointed, before evaluating
+        m.setattr(data_run, "evaluate_team", interrupted)
+        with pytest.raises(KeyboardInterrupt):
+            run_data(REPLICA, 2, "bernoulli:0.5", "tiny", 0, out, gt_mesh=mesh, device="cpu", progress=False,
+                     max_rounds=1)
+    assert (out / "checkpoints" / "team.pt").exists() and not (out / "metrics.json").exists()
+    capsys.readouterr()
+    metrics = _run(out, REPLICA, "--agents", "2", "--gt-mesh", mesh, policy="bernoulli:0.5")
+    assert "resumed the team after round 1" in capsys.readouterr().out
+    assert metrics["rounds"] == len(metrics["bytes_per_round"]) == 2
+    msgs = metrics["messages"]
+    assert msgs["delivered"] + msgs["dropped"] == 2 * 2 * 2 and msgs["dropped"] > 0 and msgs["delivered"] > 0
+    assert metrics["bytes_sent_total"] > 0  # a dropped message costs its sender
+    assert KEYS <= set(metrics["mean"]) and metrics["config"]["policy"] == "bernoulli:0.5"
 
 
 def test_scannet_with_masks_without_mesh_is_scored_against_a_tsdf_reference(tmp_path, capsys):
@@ -74,12 +104,14 @@ def test_scannet_with_masks_without_mesh_is_scored_against_a_tsdf_reference(tmp_
     assert (tmp_path / "scannet" / "meshes" / "gt_reference.ply").stat().st_size > 0
 
 
-def test_plain_rgbd_without_masks_uses_the_geometric_segmenter(tmp_path, capsys):
+def test_plain_rgbd_without_masks_uses_the_geometric_segmenter_and_never_talks(tmp_path, capsys):
     out = tmp_path / "plain"
-    metrics = _run(out, NICE_SLAM, "--agents", "1", "--gt-mesh", str(REPLICA / "mesh.ply"))
+    metrics = _run(out, NICE_SLAM, "--agents", "2", "--gt-mesh", str(REPLICA / "mesh.ply"))
     text = capsys.readouterr().out
     assert "semantics are geometric only" in text
     assert metrics["masks"] == "geometric" and metrics["ground_truth"] == "given"
+    assert metrics["bytes_sent_total"] == 0 and metrics["rounds"] >= 1 and not any(metrics["bytes_per_round"])
+    assert metrics["messages"]["delivered"] == 0 and set(metrics["agents"]) == {"agent_0", "agent_1"}
     assert metrics["mean"]["f_miou"] is None and metrics["mean"]["comp_ratio"] > 0
     assert metrics["timings_s"]["segmenter_per_frame"] > 0
     book = json.loads((out / "codebook" / "agent_0.json").read_text())["instances"]
@@ -95,9 +127,19 @@ def test_no_masks_no_mesh_and_a_frame_selection(tmp_path, capsys):
     assert metrics["masks"] == "geometric" and metrics["ground_truth"] == "tsdf_reference"
 
 
-def test_other_policies_are_refused_until_the_team_exists(tmp_path, capsys):
-    assert main(["run", "--data", str(REPLICA), "--policy", "always", "--out", str(tmp_path)]) == 2
-    assert "--policy never" in capsys.readouterr().err
+def test_bad_policies_and_options_are_refused_naming_the_problem(tmp_path, capsys):
+    base = ["run", "--data", str(REPLICA), "--preset", "tiny", "--out", str(tmp_path)]
+    for extra, message in ((["--policy", "sometimes"], "unknown policy 'sometimes'"),
+                           (["--policy", "bernoulli:1.5"], "[0, 1]"),
+                           (["--policy", "budget"], "policy 'budget' needs --comm-budget-mb"),
+                           (["--policy", "budget", "--comm-budget-mb", "-1"], "--comm-budget-mb must be >= 0"),
+                           (["--perfect-masks"], "--perfect-masks is for --scene")):
+        assert main(base + extra) == 2, extra
+        assert message in capsys.readouterr().err, extra
+    with pytest.raises(ValueError, match="no ground-truth 'oracle' alignment"):
+        run_data(REPLICA, 2, "always", "tiny", 0, tmp_path, alignment="oracle")
+    with pytest.raises(ValueError, match="unknown consistency"):
+        run_data(REPLICA, 2, "always", "tiny", 0, tmp_path, consistency="gossip")
     assert not (tmp_path / "metrics.json").exists()
 
 
