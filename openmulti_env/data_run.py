@@ -14,7 +14,6 @@ checkpoint every few rounds (a second run with the same settings resumes after t
 
 from __future__ import annotations
 
-import json
 import time
 import warnings
 from dataclasses import asdict
@@ -30,7 +29,7 @@ from mapping.runtime import set_threads
 from mapping.team import Team, TeamMember, Vocabulary
 from openmulti_env.data_inputs import DataInputs, prepare_inputs
 from openmulti_env.results import forget_stale_checkpoints
-from openmulti_env.run import (_plain, _run_rounds, mean_metrics, run_team_config, score_member, team_channel,
+from openmulti_env.run import (_plain, as_record, _run_rounds, mean_metrics, run_team_config, score_member, team_channel,
                                team_policy, team_results, team_semantics, write_team_outputs)
 from openmulti_env.run_presets import world_config
 from openmulti_env.world.scene import STRUCTURE_CATEGORIES
@@ -103,7 +102,7 @@ def run_data(data: str | Path, agents: int, policy: str, preset: str, seed: int,
                 "changed_only": changed_only}
     config = run_team_config(preset, alignment, consistency, cross_rendering, float16, changed_only)
     # a checkpoint made under other team settings (library defaults included) is not resumed
-    forget_stale_checkpoints(out, {**settings, "team": json.loads(json.dumps(_plain(asdict(config))))})
+    forget_stale_checkpoints(out, {**settings, "team": as_record(asdict(config))})
     (out / "meshes").mkdir(parents=True, exist_ok=True)
     inputs.gt_mesh.export(out / "meshes" / ("gt_observable.ply" if inputs.ground_truth == "given" else "gt_reference.ply"))
     team = Team([DataStream(inputs, name) for name in inputs.frames], config, data_vocabulary(inputs, encoder),

@@ -115,7 +115,7 @@ def run(scene: str, agents: int, policy: str, preset: str, seed: int, out: Path,
                              global_map=global_map, share_point_clouds=share_point_clouds)
     # the checkpoints must come from the same team settings too, defaults included: a run made before
     # a default changed (e.g. eq. 13's) is mapped again, not resumed into a mix of two versions
-    forget_stale_checkpoints(out, {**settings, "team": json.loads(json.dumps(_plain(asdict(config))))})
+    forget_stale_checkpoints(out, {**settings, "team": as_record(asdict(config))})
     team = Team(world_streams(world, seed, segmentation_errors, text_encoder=encoder, image_encoder=image_encoder),
                 config, world_vocabulary(world, encoder), seed=seed,
                 channel=team_channel(scripted, comm_budget_mb), device=device, workers=workers)
@@ -334,6 +334,12 @@ def mean_metrics(per_agent: dict[str, dict]) -> dict:
     """The mean over agents of every metric all agents have (``METRIC_KEYS`` and the other cullings')."""
     keys = [k for k in METRIC_KEYS + CULLING_KEYS if all(k in m for m in per_agent.values())]
     return {k: mean_or_none([m[k] for m in per_agent.values()]) for k in keys}
+
+
+def as_record(value) -> dict:
+    """``value`` as it reads back from a JSON file (tuples as lists, inf as inf): what a settings record
+    on disk is compared with."""
+    return json.loads(json.dumps(_plain(value)))
 
 
 def _plain(value):

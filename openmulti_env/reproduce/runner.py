@@ -50,11 +50,11 @@ def run_settings(spec: RunSpec, preset: str, three_cullings: bool, max_rounds: i
 def library_defaults(preset: str) -> dict:
     """The team settings a run takes from the library (JSON-plain), beside its method's options."""
     from mapping.team import ConsistencyConfig, ExchangeConfig  # noqa: PLC0415
-    from openmulti_env.run import _plain  # noqa: PLC0415
+    from openmulti_env.run import as_record  # noqa: PLC0415
     from openmulti_env.run_presets import mapping_config  # noqa: PLC0415
 
-    return json.loads(json.dumps(_plain({"consistency": asdict(ConsistencyConfig()), "exchange": asdict(ExchangeConfig()),
-                                         "mapping": asdict(mapping_config(preset))})))
+    return as_record({"consistency": asdict(ConsistencyConfig()), "exchange": asdict(ExchangeConfig()),
+                      "mapping": asdict(mapping_config(preset))})
 
 
 def row_from_metrics(spec: RunSpec, metrics: dict) -> dict:
