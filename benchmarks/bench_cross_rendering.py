@@ -1,13 +1,13 @@
-"""Cross Rendering Supervision (eq. 13) variants: where does each put or take the team's surface?
+"""Eq. 12 and eq. 13 variants: where does each put or take the team's surface?
 
 Run: `.venv/bin/python benchmarks/bench_cross_rendering.py [--scene room0] [--preset demo] [--variants ...]`.
 
-Every variant is the `openmulti` team (policy `always`, consensus eq. 12) with other eq. 13 settings
-(`ConsistencyConfig` fields). After the last round each agent's map is probed on 20k ground-truth
+Every variant is the `openmulti` team (policy `always`) with other eq. 12 / eq. 13 settings
+(`ConsistencyConfig` fields, written out where they differ from today's defaults). After the last round each agent's map is probed on 20k ground-truth
 surface samples (`mapping.evaluate.probe`, no meshing: a run costs its rounds only) and the coverage is
 split by whether the agent's own frames observed the sample ("seen") or not ("blind": what the team
-must give it). A finished variant is not run again (delete `--out/<name>.json`); results are written
-atomically. Prints a Markdown table and writes `--out/bench_cross_rendering.json` and `.png`.
+must give it). A finished variant whose row holds the same settings is not run again (delete
+`--out/<name>.json` to redo it); results are written atomically. Prints a Markdown table and writes `--out/bench_cross_rendering.json` and `.png`.
 """
 
 from __future__ import annotations
@@ -21,20 +21,41 @@ from pathlib import Path
 
 import numpy as np
 
+EQ12_AFTER_EXCHANGE = {"local_consensus": False, "rho": 0.3}
+"""Eq. 12 as it was before 2026-12-02: consensus at rho 0.3 in the consistency iterations only."""
+
 VARIANTS: dict[str, dict] = {
-    "no_cross": {"cross_rendering": False},
-    "paper_current_w1": {"cross_rendering_form": "composite", "ray_poses": "current", "render_weight": 1.0},
-    "current_w1_blind": {"cross_rendering_form": "composite", "ray_poses": "current", "render_weight": 1.0,
-                         "blind_zones_only": True},
-    "mapped_w1": {"ray_poses": "mapped", "render_weight": 1.0},
-    "mapped_w1_blind": {"ray_poses": "mapped", "render_weight": 1.0, "blind_zones_only": True},
+    # eq. 13's forms and targets, with eq. 12 in the consistency iterations only (2026-12-01)
+    "no_cross": {**EQ12_AFTER_EXCHANGE, "cross_rendering": False},
+    "paper_current_w1": {**EQ12_AFTER_EXCHANGE, "cross_rendering_form": "composite", "ray_poses": "current",
+                         "render_weight": 1.0},
+    "current_w1_blind": {**EQ12_AFTER_EXCHANGE, "cross_rendering_form": "composite", "ray_poses": "current",
+                         "render_weight": 1.0, "blind_zones_only": True},
+    "mapped_w1": {**EQ12_AFTER_EXCHANGE, "ray_poses": "mapped", "render_weight": 1.0},
+    "mapped_w1_blind": {**EQ12_AFTER_EXCHANGE, "ray_poses": "mapped", "render_weight": 1.0, "blind_zones_only": True},
+    "mapped_w0.3": {**EQ12_AFTER_EXCHANGE},
+    "mapped_w0.1": {**EQ12_AFTER_EXCHANGE, "ray_poses": "mapped", "render_weight": 0.1},
+    "mapped_w0.3_rho3": {**EQ12_AFTER_EXCHANGE, "rho": 3.0},
+    "rays_1024": {**EQ12_AFTER_EXCHANGE, "rays_per_pose": 1024},
+    "instance_mapped_w1_blind": {**EQ12_AFTER_EXCHANGE, "cross_rendering_form": "instance", "ray_poses": "mapped",
+                                 "render_weight": 1.0, "blind_zones_only": True},
+    "dsgd": {"algorithm": "dsgd"},
+    # eq. 12 in every local iteration too (2026-12-02)
+    "local_consensus_rho0.3": {"rho": 0.3},
+    "local_consensus_rho0.3_no_cross": {"rho": 0.3, "cross_rendering": False},
     "default": {},
-    "mapped_w0.1": {"ray_poses": "mapped", "render_weight": 0.1},
-    "default_rho3": {"rho": 3.0},
-    "instance_mapped_w1_blind": {"cross_rendering_form": "instance", "ray_poses": "mapped", "render_weight": 1.0,
-                                 "blind_zones_only": True},
+    "default_no_cross": {"cross_rendering": False},
 }
 """Name -> ConsistencyConfig overrides (``default``: the library's defaults)."""
+
+
+def consistency_record(overrides: dict) -> dict:
+    """Every ConsistencyConfig field of a variant (defaults included, so a changed default redoes it)."""
+    from dataclasses import asdict
+
+    from mapping.team import ConsistencyConfig
+
+    return asdict(ConsistencyConfig(**overrides))
 
 
 def seen_by_own_frames(world, agent: int, points: np.ndarray, stride: int = 5, tolerance_m: float = 0.03) -> np.ndarray:
@@ -87,7 +108,8 @@ def run_variant(name: str, overrides: dict, scene: str, preset: str, seed: int, 
                        "blind": float(covered[~seen].mean()), "seen_share": float(seen.mean())})
     world.close()
     mean = {key: float(np.mean([x[key] for x in agents])) for key in agents[0]}
-    return {"variant": name, "overrides": overrides, "scene": scene, "preset": preset, "seed": seed,
+    return {"variant": name, "overrides": overrides, "consistency": consistency_record(overrides), "scene": scene,
+            "preset": preset, "seed": seed,
             "rounds_s": rounds_s, "threads": threads, "agents": agents, "mean": mean}
 
 
@@ -110,8 +132,10 @@ def main() -> None:
     for name in args.variants:
         path = args.out / f"{name}.json"
         if path.is_file():
-            rows.append(json.loads(path.read_text()))
-            continue
+            row = json.loads(path.read_text())
+            if row.get("consistency") == consistency_record(VARIANTS[name]):
+                rows.append(row)
+                continue
         row = run_variant(name, VARIANTS[name], args.scene, args.preset, args.seed, args.threads)
         write_json_atomic(path, row)
         rows.append(row)
@@ -129,7 +153,7 @@ def main() -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(9, 4))
+    fig, ax = plt.subplots(figsize=(11, 4.2))
     x = np.arange(len(rows))
     for k, (key, label) in enumerate((("coverage", "whole room"), ("seen", "seen by the agent"),
                                       ("blind", "blind zones"))):
@@ -137,8 +161,8 @@ def main() -> None:
     ax.set_xticks(x, [r["variant"] for r in rows], rotation=30, ha="right", fontsize=8)
     ax.set_ylabel("probe coverage [%]")
     ax.set_ylim(0, 100)
-    ax.set_title(f"eq. 13 variants, {args.scene} {args.preset} seed {args.seed}: mean of 4 agents")
-    ax.legend(fontsize=8, loc="lower left")
+    ax.set_title(f"eq. 12 / eq. 13 variants, {args.scene} {args.preset} seed {args.seed}: mean of 4 agents")
+    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     fig.tight_layout()
     fig.savefig(args.out / "bench_cross_rendering.png", dpi=120)
     print(f"\nwrote {args.out / 'bench_cross_rendering.json'} and .png")

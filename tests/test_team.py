@@ -348,3 +348,30 @@ def test_ray_messages_carry_the_views_they_are_asked_for(tiny_world, ray_poses):
     else:  # views read in earlier rounds, which the sender's map has trained on
         assert frames <= set(range(per_round)) and len(frames) == team.config.consistency.poses_per_message
     assert member.ray_message(1, team.round_index, seed=5).poses.tobytes() == message.poses.tobytes()  # replayable
+
+
+def _paired_distance(team) -> float:
+    """Mean distance between agent 0's parameters and the ones it holds from agent 1, over its pairs."""
+    m = team.members[0]
+    dists = []
+    for name, bank in m.mapper.banks.items():
+        pairs = m._pairs(name)
+        if len(pairs):
+            dists.append((bank.params.detach()[pairs.rows] - pairs.vectors).norm(dim=1))
+    return float(torch.cat(dists).mean())
+
+
+def test_local_consensus_pulls_paired_instances_together_in_the_local_iterations(tiny_world):
+    # rho large enough that the pull shows within the few iterations of a tiny run
+    rho = 30.0
+    plain, _ = _tiny_team(tiny_world, consistency=ConsistencyConfig(iterations=2, rays_per_pose=64, rho=rho,
+                                                                    local_consensus=False))
+    local, _ = _tiny_team(tiny_world, consistency=ConsistencyConfig(iterations=2, rays_per_pose=64, rho=rho,
+                                                                    local_consensus=True))
+    plan = RoundPlan.always(2)
+    for _ in range(2):
+        plain.round(plan), local.round(plan)
+    # the same first round: the penalty only starts once parameters were held
+    assert plain.members[0].matches and local.members[0].matches
+    plain.round(RoundPlan.never(2)), local.round(RoundPlan.never(2))  # local iterations only, same held vectors
+    assert _paired_distance(local) < _paired_distance(plain)

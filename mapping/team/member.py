@@ -130,8 +130,26 @@ class TeamMember:
         for iid, inst in self.fusion.instances.items():
             self.labels.setdefault(iid, self.vocabulary.label(inst.caption_feature))
         keyframes = sum(self.mapper.ingest(frame, image) for frame, image in zip(frames, images))
-        loss = self.mapper.train(keyframes * self.config.mapping.iterations_per_keyframe) if keyframes else 0.0
+        extra = self._local_consensus() if self.config.consistency.local_consensus else None
+        loss = self.mapper.train(keyframes * self.config.mapping.iterations_per_keyframe, extra) if keyframes else 0.0
         return LocalReport(indices, keyframes, loss, read_s + time.perf_counter() - start)
+
+    def _local_consensus(self):
+        """Eq. 12's consensus term toward the parameters held from the peers, for every local iteration
+        (MACIM's midpoint of my current and the peer's parameters); None when nothing is paired."""
+        if self.config.consistency.algorithm != "consensus":
+            return None
+        pairs = {name: self._pairs(name) for name in self.mapper.banks}
+        if not any(len(p) for p in pairs.values()):
+            return None
+        rho = self.config.consistency.penalty_rho
+
+        def penalty() -> torch.Tensor:
+            total = torch.zeros((), device=self.mapper.device)
+            for name, bank in self.mapper.banks.items():
+                total = total + consensus_penalty(bank.params, bank.params.detach(), pairs[name], rho)
+            return total
+        return penalty
 
     # ---- 4: messages -----------------------------------------------------------------------------
     def parameter_message(self, receiver: int, round_index: int, degree: int) -> ParameterMessage:
@@ -311,7 +329,7 @@ class TeamMember:
                     if dual is not None:
                         grown[:len(dual)] = dual
                     dual = grown
-                self.duals[name] = dinno_dual_update(dual, bank.params, pairs[name], c.rho)
+                self.duals[name] = dinno_dual_update(dual, bank.params, pairs[name], c.penalty_rho)
         elif c.algorithm == "dsgd":
             for name, bank in self.mapper.banks.items():
                 with torch.no_grad():
@@ -338,9 +356,9 @@ class TeamMember:
             total = torch.zeros((), device=self.mapper.device)
             for name, bank in self.mapper.banks.items():
                 if c.algorithm == "consensus":
-                    total = total + consensus_penalty(bank.params, anchors[name], pairs[name], c.rho)
+                    total = total + consensus_penalty(bank.params, anchors[name], pairs[name], c.penalty_rho)
                 elif c.algorithm == "dinno":
-                    total = total + dinno_penalty(bank.params, anchors[name], self.duals[name], pairs[name], c.rho)
+                    total = total + dinno_penalty(bank.params, anchors[name], self.duals[name], pairs[name], c.penalty_rho)
             terms["parameter"] = float(total.detach())
             render = torch.zeros((), device=self.mapper.device)
             used = 0
