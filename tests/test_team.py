@@ -375,3 +375,20 @@ def test_local_consensus_pulls_paired_instances_together_in_the_local_iterations
     assert plain.members[0].matches and local.members[0].matches
     plain.round(RoundPlan.never(2)), local.round(RoundPlan.never(2))  # local iterations only, same held vectors
     assert _paired_distance(local) < _paired_distance(plain)
+
+
+def test_a_lost_first_message_is_sent_again_with_its_clouds(tiny_world):
+    # round 0: every parameter message is lost; round 1: all arrive. The receiver must get each
+    # instance's cloud then (only a delivered message books what the peer holds), and align them.
+    team, _ = _tiny_team(tiny_world)
+    team.channel.success = np.zeros((2, 2))
+    lost = team.round(RoundPlan(~np.eye(2, dtype=bool), np.zeros((2, 2), bool)))
+    assert lost.delivered == 0 and lost.dropped == 2
+    assert not team.members[0].sent_vectors.get(1) and not team.members[0].sent_cloud_points.get(1)
+    team.channel.success = np.ones((2, 2))
+    team.round(RoundPlan(~np.eye(2, dtype=bool), np.zeros((2, 2), bool)))
+    for m in team.members:
+        peer = 1 - m.index
+        held = m.held[peer]
+        assert held and all(p.cloud is not None for p in held.values())  # every instance came with its cloud
+        assert set(m.matches[peer]) == set(held)  # and was aligned (matched or adopted)

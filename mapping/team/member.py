@@ -98,6 +98,7 @@ class TeamMember:
         self.duals: dict[str, torch.Tensor] = {}
         self.peer_positions: dict[int, tuple[int, np.ndarray]] = {}  # peer -> (round, (3,) position) from its rays
         self._shadow: dict[int, tuple[int, list, list]] = {}
+        self._unacknowledged: dict[int, tuple[dict, dict]] = {}  # receiver -> bookkeeping of the message in flight
 
     @property
     def name(self) -> str:
@@ -153,9 +154,11 @@ class TeamMember:
 
     # ---- 4: messages -----------------------------------------------------------------------------
     def parameter_message(self, receiver: int, round_index: int, degree: int) -> ParameterMessage:
+        """This agent's instances for ``receiver`` (what changed-only sending skips, clouds the first time
+        or after they doubled); what the receiver holds is booked only on ``acknowledge``."""
         ex = self.config.exchange
-        sent = self.sent_vectors.setdefault(receiver, {})
-        clouds = self.sent_cloud_points.setdefault(receiver, {})
+        sent = dict(self.sent_vectors.get(receiver, {}))
+        clouds = dict(self.sent_cloud_points.get(receiver, {}))
         payloads = []
         for iid in self.mapper.live_ids():
             if not ex.forward_adopted and not self.mapper.keyframes.has_pixels(iid):
@@ -179,7 +182,17 @@ class TeamMember:
                 inst.frame.origin, inst.frame.version, entry.caption, entry.caption_feature.astype(dtype),
                 entry.confidence, cloud))
             sent[iid] = inst.params
+        self._unacknowledged[receiver] = (sent, clouds)
         return ParameterMessage(self.index, receiver, round_index, payloads, degree)
+
+    def acknowledge(self, receiver: int, delivered: bool) -> None:
+        """The link told the sender whether its parameter message reached ``receiver`` (an
+        acknowledgement, not counted in bytes). Only a delivered message changes what this agent
+        believes the receiver holds: a lost first message with an instance's cloud is sent again with
+        its cloud next time, and changed-only sending compares with what really arrived."""
+        booked = self._unacknowledged.pop(receiver, None)
+        if delivered and booked is not None:
+            self.sent_vectors[receiver], self.sent_cloud_points[receiver] = booked
 
     def point_cloud_message(self, receiver: int, round_index: int) -> PointCloudMessage:
         """Every point this agent has observed so far (its fused instances' clouds), down-sampled."""

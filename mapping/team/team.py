@@ -186,6 +186,8 @@ class Team:
                         messages.append(ray)
                 for message in messages:
                     d = self.channel.transmit(message)
+                    if d.kind == "params":
+                        self.members[i].acknowledge(j, d.status == DELIVERED)
                     deliveries.append({"sender": i, "receiver": j, "kind": d.kind, "status": d.status,
                                        "bytes": d.bytes})
                     if d.status == DELIVERED and d.kind != "points":  # clouds are counted, not learned from
