@@ -49,13 +49,20 @@ VARIANTS: dict[str, dict] = {
 """Name -> ConsistencyConfig overrides (``default``: the library's defaults)."""
 
 
-def consistency_record(overrides: dict) -> dict:
-    """Every ConsistencyConfig field of a variant (defaults included, so a changed default redoes it)."""
+def run_key(overrides: dict, scene: str, preset: str, seed: int) -> dict:
+    """What decides a variant's row: scene, preset, seed and every team setting it learns with
+    (the variant's ConsistencyConfig in full, the library's message and mapper defaults), so that a
+    changed default or another scene redoes the row instead of reusing it."""
     from dataclasses import asdict
 
     from mapping.team import ConsistencyConfig
+    from openmulti_env.reproduce.runner import library_defaults
+    from openmulti_env.run import as_record
 
-    return asdict(ConsistencyConfig(**overrides))
+    defaults = library_defaults(preset)
+    return {"scene": scene, "preset": preset, "seed": seed,
+            "consistency": as_record(asdict(ConsistencyConfig(**overrides))),
+            "exchange": defaults["exchange"], "mapping": defaults["mapping"]}
 
 
 def seen_by_own_frames(world, agent: int, points: np.ndarray, stride: int = 5, tolerance_m: float = 0.03) -> np.ndarray:
@@ -108,7 +115,7 @@ def run_variant(name: str, overrides: dict, scene: str, preset: str, seed: int, 
                        "blind": float(covered[~seen].mean()), "seen_share": float(seen.mean())})
     world.close()
     mean = {key: float(np.mean([x[key] for x in agents])) for key in agents[0]}
-    return {"variant": name, "overrides": overrides, "consistency": consistency_record(overrides), "scene": scene,
+    return {"variant": name, "overrides": overrides, "key": run_key(overrides, scene, preset, seed), "scene": scene,
             "preset": preset, "seed": seed,
             "rounds_s": rounds_s, "threads": threads, "agents": agents, "mean": mean}
 
@@ -133,7 +140,7 @@ def main() -> None:
         path = args.out / f"{name}.json"
         if path.is_file():
             row = json.loads(path.read_text())
-            if row.get("consistency") == consistency_record(VARIANTS[name]):
+            if row.get("key") == run_key(VARIANTS[name], args.scene, args.preset, args.seed):
                 rows.append(row)
                 continue
         row = run_variant(name, VARIANTS[name], args.scene, args.preset, args.seed, args.threads)

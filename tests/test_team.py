@@ -392,3 +392,21 @@ def test_a_lost_first_message_is_sent_again_with_its_clouds(tiny_world):
         held = m.held[peer]
         assert held and all(p.cloud is not None for p in held.values())  # every instance came with its cloud
         assert set(m.matches[peer]) == set(held)  # and was aligned (matched or adopted)
+
+
+def test_each_algorithm_takes_its_own_penalty_weight():
+    assert ConsistencyConfig().penalty_rho == 3.0 and ConsistencyConfig(algorithm="dinno").penalty_rho == 0.3
+    assert ConsistencyConfig(algorithm="consensus", rho=0.5).penalty_rho == 0.5
+    assert ConsistencyConfig(algorithm="dinno", dinno_rho=0.4, rho=9.0).penalty_rho == 0.4
+    for bad in ({"rho": -1.0}, {"dinno_rho": float("nan")}):
+        with pytest.raises(ValueError, match="rho must be >= 0"):
+            ConsistencyConfig(**bad)
+
+
+def test_a_message_over_budget_books_nothing(tiny_world):
+    team, _ = _tiny_team(tiny_world, channel=ChannelConfig(budget_bytes=10))
+    report = team.round(RoundPlan(~np.eye(2, dtype=bool), np.zeros((2, 2), bool)))
+    assert report.over_budget == 2 and report.delivered == 0
+    for m in team.members:
+        assert not m.sent_vectors.get(1 - m.index) and not m.sent_cloud_points.get(1 - m.index)
+        assert not m._unacknowledged

@@ -13,8 +13,6 @@ CROSS_RENDERING_FORMS = ("instance", "composite")
 """The two forms of eq. 13 (``ConsistencyConfig.cross_rendering_form``)."""
 RAY_POSES = ("current", "mapped")
 """Which views a ray message's poses come from (``ConsistencyConfig.ray_poses``)."""
-DEFAULT_RHO = {"consensus": 3.0, "dinno": 0.3}
-"""Eq. 12's penalty weight per algorithm when ``ConsistencyConfig.rho`` is None."""
 
 
 @dataclass(frozen=True)
@@ -23,17 +21,18 @@ class ConsistencyConfig:
 
     algorithm: str = "consensus"
     """Parameter consistency (eq. 12): consensus (MACIM), dinno, dsgd or none."""
-    rho: float | None = None
-    """Penalty weight; None: the algorithm's (``DEFAULT_RHO``: consensus 3, DiNNO 0.3 as in its paper;
-    MACIM used 0.3). With Adam the pull's step does not grow with rho, only its share of the gradient.
-    Measured for consensus (room0 ``demo``, probe coverage, ``local_consensus``): rho 0.3 90.6 %,
-    rho 3 91.9 %."""
+    rho: float = 3.0
+    """Consensus penalty weight (MACIM used 0.3). With Adam the pull's step does not grow with rho, only
+    its share of the gradient. Measured (room0 ``demo``, probe coverage, ``local_consensus``): rho 0.3
+    90.6 %, rho 3 91.9 %."""
+    dinno_rho: float = 0.3
+    """DiNNO's penalty weight (its paper: 0.3-0.5)."""
     iterations: int = 5
     """Consistency iterations per round (data loss + the terms below)."""
     local_consensus: bool = True
-    """Also add the consensus penalty (eq. 12, with the parameters last received) to every local
-    iteration of the next round, as MACIM does at every step (False: eq. 12 acts only in the
-    ``iterations`` after an exchange). Measured (room0 ``demo``, probe coverage, rho 0.3): 90.6 %
+    """With ``algorithm="consensus"``, also add the consensus penalty (eq. 12, toward the parameters last
+    received) to every local iteration of the next round, as MACIM does at every step (False: eq. 12
+    acts only in the ``iterations`` after an exchange; DiNNO and DSGD ignore it). Measured (room0 ``demo``, probe coverage, rho 0.3): 90.6 %
     against 86.9 % without; the blind zones 87.9 against 82.7 %, at no extra compute."""
     cross_rendering: bool = True
     """Render consistency on the peers' shared rays (eq. 13)."""
@@ -71,12 +70,13 @@ class ConsistencyConfig:
 
     @property
     def penalty_rho(self) -> float:
-        """The rho in force (``rho``, or the algorithm's default)."""
-        return DEFAULT_RHO.get(self.algorithm, 0.0) if self.rho is None else self.rho
+        """The penalty weight of ``algorithm`` (``dinno_rho`` for DiNNO, else ``rho``)."""
+        return self.dinno_rho if self.algorithm == "dinno" else self.rho
 
     def __post_init__(self) -> None:
-        if self.rho is not None and not self.rho >= 0:
-            raise ValueError(f"rho must be >= 0, got {self.rho}")
+        for name in ("rho", "dinno_rho"):
+            if not getattr(self, name) >= 0:
+                raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
         if self.cross_rendering_form not in CROSS_RENDERING_FORMS:
             raise ValueError(f"unknown cross_rendering_form {self.cross_rendering_form!r}; "
                              f"choose one of {CROSS_RENDERING_FORMS}")

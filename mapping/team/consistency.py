@@ -5,7 +5,9 @@ ids, the same frame: ``mapping.agent.InstanceFrame``). A *pair* is (own row, pee
 ``begin`` runs once before the consistency iterations, ``penalty`` is added to every iteration's loss.
 
 - ``consensus`` (MACIM): (rho/2) ||theta - (theta_0 + theta_j)/2||^2, theta_0 the own parameters at the
-  start of the round's consistency iterations (the midpoint is fixed during them); rho 0.3.
+  start of the round's consistency iterations (the midpoint is fixed during them), and with
+  ``ConsistencyConfig.local_consensus`` also in every local iteration with theta_0 the current
+  parameters (MACIM's per-step form); rho 3 by default (MACIM: 0.3).
 - ``dinno`` (DiNNO's ADMM): ``begin`` updates each own row's dual, p += rho sum_j (theta - theta_j);
   the penalty is theta . p + rho sum_j ||theta - (theta_0 + theta_j)/2||^2.
 - ``dsgd``: ``begin`` mixes with Metropolis weights W_kj = 1 / (max(deg_k, deg_j) + 1),
@@ -42,7 +44,7 @@ def consensus_penalty(params: Tensor, anchor: Tensor, pairs: ConsistencyPairs, r
 
     Args:
         params: (N, D) the bank's parameters (with grad).
-        anchor: (N, D) the parameters when the iterations began (no grad).
+        anchor: (N, D) the parameters when the iterations began, or the current ones detached (no grad).
         pairs: K pairs.
     """
     if len(pairs) == 0:

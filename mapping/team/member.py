@@ -3,8 +3,10 @@
 A member only ever shares ``messages`` with the others (no object crosses between members), so that
 one process per agent can come later. Per round (``Team.round`` calls these in order):
 ``local_round`` (read the round's frames -> online fusion -> keyframes -> local iterations of the data
-loss, eq. 8-11), ``parameter_message`` / ``ray_message`` for the peers the plan names,
-``receive_parameters`` (hold, align on arrival, adopt), ``consistency_round`` (eq. 12 + eq. 13).
+loss, eq. 8-11, plus eq. 12's consensus toward the parameters last received with ``local_consensus``),
+``parameter_message`` / ``ray_message`` for the peers the plan names (``acknowledge`` books what a
+delivered one gave the peer), ``receive_parameters`` (hold, align on arrival, adopt),
+``consistency_round`` (eq. 12 + eq. 13).
 """
 
 from __future__ import annotations
@@ -72,7 +74,10 @@ class LocalReport:
     frames: list[int]
     keyframes: int
     loss: float
+    """The data loss (eq. 8-11) of the last local iteration."""
     seconds: float
+    parameter: float = 0.0
+    """The consensus term (eq. 12) of the last local iteration (``local_consensus``; 0 without)."""
 
 
 class TeamMember:
@@ -131,13 +136,16 @@ class TeamMember:
         for iid, inst in self.fusion.instances.items():
             self.labels.setdefault(iid, self.vocabulary.label(inst.caption_feature))
         keyframes = sum(self.mapper.ingest(frame, image) for frame, image in zip(frames, images))
-        extra = self._local_consensus() if self.config.consistency.local_consensus else None
+        terms = {"parameter": 0.0}
+        extra = self._local_consensus(terms) if self.config.consistency.local_consensus else None
         loss = self.mapper.train(keyframes * self.config.mapping.iterations_per_keyframe, extra) if keyframes else 0.0
-        return LocalReport(indices, keyframes, loss, read_s + time.perf_counter() - start)
+        return LocalReport(indices, keyframes, loss - terms["parameter"], read_s + time.perf_counter() - start,
+                           terms["parameter"])
 
-    def _local_consensus(self):
+    def _local_consensus(self, terms: dict):
         """Eq. 12's consensus term toward the parameters held from the peers, for every local iteration
-        (MACIM's midpoint of my current and the peer's parameters); None when nothing is paired."""
+        (MACIM's midpoint of my current and the peer's parameters; its value goes to
+        ``terms["parameter"]``); None when nothing is paired."""
         if self.config.consistency.algorithm != "consensus":
             return None
         pairs = {name: self._pairs(name) for name in self.mapper.banks}
@@ -149,6 +157,7 @@ class TeamMember:
             total = torch.zeros((), device=self.mapper.device)
             for name, bank in self.mapper.banks.items():
                 total = total + consensus_penalty(bank.params, bank.params.detach(), pairs[name], rho)
+            terms["parameter"] = float(total.detach())
             return total
         return penalty
 

@@ -1,7 +1,8 @@
 """A team of mapping agents advancing in rounds: ``Team.round(plan) -> RoundReport``.
 
 One round (DESIGN.md, "the flow of one env step"): every agent reads its next frames, fuses them and
-runs its local iterations; the channel carries the messages the plan asks for; every receiver holds
+runs its local iterations (the data loss, and eq. 12 toward what it last received when
+``ConsistencyConfig.local_consensus``); the channel carries the messages the plan asks for; every receiver holds
 and aligns what arrived and runs its consistency iterations (eq. 12-13). The plan is two (N, N)
 boolean matrices, ``send_params[i, j]`` (i sends its parameters to j) and ``share_rays[i, j]`` (i
 shares its current rays with j), diagonal False: the env's actions and the CLI's scripted policies
@@ -210,7 +211,8 @@ class Team:
         alignment, losses, consistency_s = {}, {}, []
         for member, (counts, terms, seconds) in zip(self.members, self.each_member(receive_and_agree)):
             alignment[member.name] = counts
-            losses[member.name] = {"data": local[member.index].loss, **terms}
+            losses[member.name] = {"data": local[member.index].loss,
+                                   "local_parameter": local[member.index].parameter, **terms}
             consistency_s.append(seconds)
         self.round_index += 1
         statuses = [d["status"] for d in deliveries]
