@@ -262,8 +262,13 @@ class MappingAgent:
 
     def merge_instances(self, source: int, target: int) -> None:
         """``source`` is a piece of ``target`` (over-segmentation): its pixels join ``target``'s, the
-        box grows to hold both, and ``source``'s network is retired."""
+        box grows to hold both, and ``source``'s network is retired; a ``target`` with no network yet
+        (seen in no keyframe so far) takes ``source``'s network over."""
         if source == target:
+            return
+        if target not in self.slots:
+            self.slots[target] = self.slots.pop(source)
+            self.keyframes.merge_ids(source, target)
             return
         src, dst = self.slots[source], self.slots[target]
         self.keyframes.merge_ids(source, target)

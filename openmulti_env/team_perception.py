@@ -17,12 +17,11 @@ from tqdm import tqdm
 
 from mapping.alignment import AlignmentConfig, TeamPerception
 from mapping.fusion import FusionConfig, fuse_frames
-from mapping.perception import CodeBook, TextEncoder, shared_text_encoder
+from mapping.perception import TextEncoder, shared_text_encoder
 from mapping.perception.errors import SegmentationErrorConfig
 from mapping.perception.front_end import encode_segments
 from mapping.perception.image_encoder import ImageTextEncoder
 from mapping.perception.segmenter import OracleSegmenter
-from openmulti_env.world.scene import STRUCTURE_CATEGORIES
 from openmulti_env.world.semantics import instance_anchor_points, instance_infos
 from openmulti_env.world.world import World
 
@@ -66,11 +65,6 @@ def perceive_team(world: World, seed: int, config: FrontEndConfig | None = None,
 def category_vocabulary(world: World) -> list[str]:
     """The scene's category names (what zero-shot labelling chooses from), sorted."""
     return sorted({inst.category for inst in world.scene.instances})
-
-
-def structure_ids(codebook: CodeBook, labels: dict[int, str]) -> set[int]:
-    """Ids whose zero-shot label is wall, floor or ceiling (they get the wider structure networks)."""
-    return {i for i in codebook if labels.get(i) in STRUCTURE_CATEGORIES}
 
 
 def semantic_ground_truth(world: World, n_points: int = 200_000, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:

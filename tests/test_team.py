@@ -410,3 +410,20 @@ def test_a_message_over_budget_books_nothing(tiny_world):
     for m in team.members:
         assert not m.sent_vectors.get(1 - m.index) and not m.sent_cloud_points.get(1 - m.index)
         assert not m._unacknowledged
+
+
+def test_merging_a_piece_into_an_instance_without_a_network_keeps_ids_in_step(tiny_world):
+    # an arrival can merge my piece (with a network) into an instance seen in no keyframe yet (none):
+    # the piece's network must move to the surviving id, never stay alive under a retired one
+    team, _ = _tiny_team(tiny_world)
+    team.round(RoundPlan.never(2))
+    m = team.members[0]
+    piece = next(i for i in m.mapper.live_ids() if m.mapper.keyframes.has_pixels(i))
+    inst = m.fusion.instances[piece]
+    target = m.fusion.add_instance(inst.points, inst.caption, inst.caption_feature, inst.confidence)
+    assert target not in m.mapper.slots
+    m._merge(piece, target)
+    assert piece not in m.fusion.instances and piece not in m.mapper.live_ids()
+    assert target in m.mapper.live_ids() and m.mapper.keyframes.has_pixels(target)
+    assert set(m.mapper.live_ids()) <= set(m.fusion.instances)
+    m.parameter_message(1, 1, 1)  # every live instance has its code-book entry

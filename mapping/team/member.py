@@ -300,7 +300,7 @@ class TeamMember:
     def _merge(self, piece: int, target: int) -> None:
         if piece in self.fusion.instances and target in self.fusion.instances:
             self.fusion.merge(piece, target)
-        if piece in self.mapper.slots and target in self.mapper.slots:
+        if piece in self.mapper.slots and target in self.fusion.instances:  # a retired id keeps no network
             self.mapper.merge_instances(piece, target)
         for table in self.matches.values():
             for pid, own in table.items():
