@@ -32,8 +32,9 @@ class ConsistencyConfig:
     local_consensus: bool = True
     """With ``algorithm="consensus"``, also add the consensus penalty (eq. 12, toward the parameters last
     received) to every local iteration of the next round, as MACIM does at every step (False: eq. 12
-    acts only in the ``iterations`` after an exchange; DiNNO and DSGD ignore it). Measured (room0 ``demo``, probe coverage, rho 0.3): 90.6 %
-    against 86.9 % without; the blind zones 87.9 against 82.7 %, at no extra compute."""
+    acts only in the ``iterations`` after an exchange; DiNNO and DSGD ignore it). Measured (room0
+    ``demo``, probe coverage, rho 0.3): 90.6 % against 86.9 % without; the blind zones 87.9 against
+    82.7 %, at no extra compute."""
     cross_rendering: bool = True
     """Render consistency on the peers' shared rays (eq. 13)."""
     cross_rendering_form: str = "composite"

@@ -136,13 +136,13 @@ class TeamMember:
         for iid, inst in self.fusion.instances.items():
             self.labels.setdefault(iid, self.vocabulary.label(inst.caption_feature))
         keyframes = sum(self.mapper.ingest(frame, image) for frame, image in zip(frames, images))
-        terms = {"parameter": 0.0}
+        terms: dict[str, torch.Tensor] = {}
         extra = self._local_consensus(terms) if self.config.consistency.local_consensus else None
         loss = self.mapper.train(keyframes * self.config.mapping.iterations_per_keyframe, extra) if keyframes else 0.0
-        return LocalReport(indices, keyframes, loss - terms["parameter"], read_s + time.perf_counter() - start,
-                           terms["parameter"])
+        parameter = float(terms["parameter"]) if "parameter" in terms else 0.0  # read once, not every step
+        return LocalReport(indices, keyframes, loss - parameter, read_s + time.perf_counter() - start, parameter)
 
-    def _local_consensus(self, terms: dict):
+    def _local_consensus(self, terms: dict[str, torch.Tensor]):
         """Eq. 12's consensus term toward the parameters held from the peers, for every local iteration
         (MACIM's midpoint of my current and the peer's parameters; its value goes to
         ``terms["parameter"]``); None when nothing is paired."""
@@ -157,7 +157,7 @@ class TeamMember:
             total = torch.zeros((), device=self.mapper.device)
             for name, bank in self.mapper.banks.items():
                 total = total + consensus_penalty(bank.params, bank.params.detach(), pairs[name], rho)
-            terms["parameter"] = float(total.detach())
+            terms["parameter"] = total.detach()  # a tensor: no device sync inside the training loop
             return total
         return penalty
 
