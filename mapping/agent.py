@@ -51,6 +51,10 @@ class MappingConfig:
     structure_width: int = 64
     """Hidden width of wall / floor / ceiling networks (vMAP's background: 128 on a GPU; planes need
     less, and at 128 they take 90% of a CPU step)."""
+    structure_encoding_scale: float = 2.0
+    """``FieldConfig.encoding_scale`` of the structure bank. A global map's one network lives in it
+    with the scene box as its frame, where 2 leaves its finest geometry band a period of about 1.3 m
+    (``mapping.team.global_map.GLOBAL_ENCODING_SCALE`` sets a finer one for it)."""
     lr: float = 1e-3
     """AdamW learning rate."""
     object_voxel_m: float = 0.01
@@ -144,7 +148,8 @@ class MappingAgent:
         self.generator = torch.Generator(device=self.device).manual_seed(seed)
         self.init_generator = torch.Generator().manual_seed(seed)
         self.banks = {"object": InstanceFieldBank(OBJECT_FIELD, self.device),
-                      "structure": InstanceFieldBank(replace(STRUCTURE_FIELD, hidden_width=self.config.structure_width),
+                      "structure": InstanceFieldBank(replace(STRUCTURE_FIELD, hidden_width=self.config.structure_width,
+                                                             encoding_scale=self.config.structure_encoding_scale),
                                                      self.device)}
         self.optimisers = {name: StackedAdam(bank, AdamConfig(lr=self.config.lr)) for name, bank in self.banks.items()}
         self.slots: dict[int, _InstanceSlot] = {}

@@ -174,7 +174,8 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
     from openmulti_env.reproduce.command import reproduce  # noqa: PLC0415
 
     written = reproduce(args.table, args.scenes, args.seeds, args.preset, args.out, agents=args.agents,
-                        threads=args.threads, device=args.device, three_cullings=not args.free_space_only)
+                        threads=args.threads, device=args.device, three_cullings=not args.free_space_only,
+                        methods=args.methods)
     for name in written:
         print(Path(args.out, f"{name}.md").read_text())
     print(f"Wrote {', '.join(f'{args.out}/{n}.json' for n in written)} (+ .md, .png)")
@@ -278,6 +279,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--device", default="cpu", help="cpu, cuda or auto")
     p.add_argument("--free-space-only", action="store_true",
                    help="score with today's free-space culling only (skip the NICE-SLAM and unculled scores)")
+    p.add_argument("--methods", nargs="+", metavar="M",
+                   help="run only these of the table's methods (two processes can share --out this way)")
     p.set_defaults(func=cmd_reproduce)
 
     p = sub.add_parser("cache", help="the env's world-geometry cache: where it is, its size, --clear")

@@ -28,7 +28,7 @@ from mapping.field import OBJECT_FIELD
 from mapping.runtime import available_cores, set_threads
 from mapping.team import ChannelConfig, ConsistencyConfig, ExchangeConfig, Team, TeamConfig, TeamMember
 from mapping.team.consistency import CONSISTENCY_ALGORITHMS
-from mapping.team.global_map import global_rays_for, scene_frame
+from mapping.team.global_map import GLOBAL_ENCODING_SCALE, GLOBAL_WIDTH, global_rays_for, scene_frame
 from mapping.checkpoint import CheckpointError
 from mapping.evaluate import export_scene_mesh, merge_instance_meshes
 from mapping.evaluate.semantic import SemanticMetrics, semantic_metrics, zero_shot_labels
@@ -47,8 +47,6 @@ from openmulti_env.world import World
 METRIC_KEYS = ("acc_cm", "comp_cm", "comp_ratio", "f_miou", "f_macc")
 CULLING_KEYS = tuple(f"{m}{s}" for s in ("_nice", "_unculled") for m in ("acc_cm", "comp_cm", "comp_ratio"))
 """The same geometry under the other cullings (``openmulti_env.scoring``), averaged like the rest."""
-GLOBAL_WIDTH = 128
-"""Hidden width of a global map's one network (vMAP's background network)."""
 RUN_ALIGNMENT_MODES = ("paper", "none")
 TEAM_ID_STRIDE = 100_000
 """Agent k's instance i is ``k * TEAM_ID_STRIDE + i`` in the union of all agents' maps."""
@@ -59,7 +57,8 @@ def run(scene: str, agents: int, policy: str, preset: str, seed: int, out: Path,
         comm_budget_mb: float | None = None, consistency: str = "consensus", cross_rendering: bool = True,
         float16: bool = False, changed_only: float | None = None, threads: int | None = None,
         checkpoint_every: int = 5, progress: bool = True, max_rounds: int | None = None,
-        global_map: bool = False, global_width: int = GLOBAL_WIDTH, share_point_clouds: bool = False,
+        global_map: bool = False, global_width: int = GLOBAL_WIDTH,
+        global_encoding_scale: float = GLOBAL_ENCODING_SCALE, share_point_clouds: bool = False,
         three_cullings: bool = False, plots: bool = True, workers: int | None = None) -> dict:
     """The whole run; returns the metrics dictionary written to ``out/metrics.json``.
 
@@ -77,8 +76,9 @@ def run(scene: str, agents: int, policy: str, preset: str, seed: int, out: Path,
         threads: torch threads (default: all cores).
         checkpoint_every: save the team every this many rounds (an interrupted run resumes from it).
         max_rounds: stop after this many rounds (None: when the paths end), e.g. for smoke tests.
-        global_map: one network of width ``global_width`` for the whole scene per agent, with the
-            instance-level map's per-step compute (``mapping.team.global_map``): the global baselines.
+        global_map: one network of width ``global_width`` (encoding scale ``global_encoding_scale``)
+            for the whole scene per agent, with the instance-level map's per-step compute
+            (``mapping.team.global_map``): the global baselines.
         share_point_clouds: "send parameters" links carry the observed points instead (Table VI).
         three_cullings: also score every map NICE-SLAM-culled and unculled (``openmulti_env.scoring``).
         plots: write the pictures (the experiments skip them: they cost seconds per run).
@@ -106,11 +106,12 @@ def run(scene: str, agents: int, policy: str, preset: str, seed: int, out: Path,
                 "float16": float16, "changed_only": changed_only}
     if global_map or share_point_clouds or three_cullings:  # older runs' settings stay as they were
         settings.update({"global_map": global_map, "global_width": global_width,
+                         **({"global_encoding_scale": global_encoding_scale} if global_map else {}),
                          "share_point_clouds": share_point_clouds, "three_cullings": three_cullings})
     print(f"[openmulti] world {world.scene.name}: {len(world.scene.instances)} instances, "
           f"{world.num_agents} agent(s), {sum(len(p) for p in world.agent_poses)} frames")
     encoder = shared_text_encoder()
-    mapping, map_info = _map_structure(world, preset, global_map, global_width)
+    mapping, map_info = _map_structure(world, preset, global_map, global_width, global_encoding_scale)
     config = run_team_config(preset, alignment, consistency, cross_rendering, float16, changed_only, mapping=mapping,
                              global_map=global_map, share_point_clouds=share_point_clouds)
     # the checkpoints must come from the same team settings too, defaults included: a run made before
@@ -196,7 +197,8 @@ def write_team_outputs(out: Path, result: dict, reports: list[dict], title: str,
         save_round_bytes(out / "plots" / "bytes_per_round.png", reports, title)
 
 
-def _map_structure(world: World, preset: str, global_map: bool, width: int) -> tuple[MappingConfig, dict]:
+def _map_structure(world: World, preset: str, global_map: bool, width: int,
+                   encoding_scale: float = GLOBAL_ENCODING_SCALE) -> tuple[MappingConfig, dict]:
     """The mapper settings and a description of the map (widths, rays per step) for the table.
 
     A global map gets the scene box as its frame and the rays per step that buy the per-step MLP
@@ -212,10 +214,10 @@ def _map_structure(world: World, preset: str, global_map: bool, width: int) -> t
                          + structures * mapping.rays_per_structure}
     rays = global_rays_for(objects, structures, mapping.rays_per_object, mapping.rays_per_structure,
                            OBJECT_FIELD.hidden_width, mapping.structure_width, width)
-    info = {"kind": "global", "width": width, "rays_per_step": rays,
+    info = {"kind": "global", "width": width, "encoding_scale": encoding_scale, "rays_per_step": rays,
             "matched_to": f"{objects} objects x {mapping.rays_per_object} rays at width {OBJECT_FIELD.hidden_width} "
                           f"+ {structures} structures x {mapping.rays_per_structure} at width {mapping.structure_width}"}
-    return replace(mapping, structure_width=width, rays_per_structure=rays,
+    return replace(mapping, structure_width=width, structure_encoding_scale=encoding_scale, rays_per_structure=rays,
                    global_frame=scene_frame(world.scene.size_m)), info
 
 

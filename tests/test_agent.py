@@ -82,6 +82,14 @@ def test_generators_live_on_the_mapping_device():
     assert agent.init_generator.device.type == "cpu"
 
 
+def test_the_structure_banks_encoding_scale_is_a_mapper_setting():
+    """A global map's one network (in the structure bank, over the scene box) takes a finer encoding."""
+    agent = MappingAgent(MappingConfig(structure_encoding_scale=0.5), device="cpu")
+    assert agent.banks["structure"].config.encoding_scale == 0.5
+    assert agent.banks["object"].config.encoding_scale == MappingAgent(device="cpu").banks["object"].config.encoding_scale
+    assert MappingAgent(device="cpu").banks["structure"].config.encoding_scale == 2.0
+
+
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
 def test_a_training_step_runs_on_cuda(tiny_world):
     agent = MappingAgent(MappingConfig(keyframe_every=1), device="cuda")

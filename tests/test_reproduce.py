@@ -11,6 +11,7 @@ import trimesh
 
 from mapping.data.frame import Intrinsics
 from mapping.evaluate.culling import cull_to_frustums
+from mapping.team.global_map import GLOBAL_ENCODING_SCALE
 from openmulti_env.reproduce.command import reproduce
 from openmulti_env.reproduce.methods import METHODS, TABLE_I_METHODS, get_method
 from openmulti_env.reproduce.runner import run_table
@@ -36,6 +37,7 @@ def test_every_method_runs_two_rounds_on_the_tiny_world_and_writes_a_row(tmp_pat
     by = {r["method"]: r for r in rows}
     assert by["single"]["bytes_per_round"] == 0 and by["single_agent"]["agents"] == 1
     assert by["dinerf_global"]["map"]["kind"] == "global" and by["dinerf_global"]["f_miou"] is None
+    assert by["dinerf_global"]["map"]["encoding_scale"] == GLOBAL_ENCODING_SCALE
     assert by["openmulti"]["map"]["kind"] == "instance" and by["openmulti"]["f_miou"] is not None
     # point clouds grow with the explored area; a global map sends one network of a fixed size
     clouds, single_net = by["pointcloud_sharing"]["bytes_per_round_series"], by["macim_global"]["bytes_per_round_series"]
@@ -130,6 +132,17 @@ def test_unknown_names_get_a_clear_error_listing_the_known_ones(tmp_path):
 
     assert main(["reproduce", "--table", "tables", "--out", str(tmp_path)]) == 2
 
+
+
+def test_methods_filter_runs_only_those_and_names_the_tables_methods(tmp_path):
+    calls = []
+    written = reproduce("all", ["tiny"], [0], "tiny", tmp_path, run_fn=_fake_run(calls), progress=False,
+                        methods=["pointcloud_sharing", "single"])
+    assert set(written) == {"geometric", "semantic", "transmission"}  # the tables holding either method
+    assert sorted({r["method"] for rows in written.values() for r in rows}) == ["pointcloud_sharing", "single"]
+    assert len(calls) == 2  # single is in two tables, made once
+    with pytest.raises(ValueError, match="not in table 'comm-failure'.*dinerf_global, openmulti"):
+        reproduce("comm-failure", ["tiny"], [0], "tiny", tmp_path, run_fn=_fake_run([]), methods=["single"])
 
 # ---- each culling on a hand-made mesh -------------------------------------------------------------
 def _two_walls():

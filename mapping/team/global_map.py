@@ -17,6 +17,10 @@ import numpy as np
 from mapping.field import mlp_flops_per_point
 from mapping.perception.codebook import CodeBookEntry
 
+GLOBAL_WIDTH = 128
+"""Hidden width of a global map's one network (vMAP's background network)."""
+GLOBAL_ENCODING_SCALE = 2.0
+"""Its ``FieldConfig.encoding_scale`` over the scene frame (box coordinates in [-1, 1] divided by it)."""
 GLOBAL_INSTANCE_ID = 1
 """The one instance of a global map (0 means "no instance" in every instance image)."""
 GLOBAL_CAPTION = "the whole scene"

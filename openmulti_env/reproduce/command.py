@@ -17,15 +17,27 @@ from openmulti_env.reproduce.writers import write_table
 
 def reproduce(table: str, scenes: list[str], seeds: list[int], preset: str, out: str | Path, agents: int = 4,
               threads: int | None = 1, device: str = "cpu", three_cullings: bool = True,
-              max_rounds: int | None = None, progress: bool = True, run_fn=None) -> dict[str, list[dict]]:
+              max_rounds: int | None = None, progress: bool = True, run_fn=None,
+              methods: list[str] | None = None) -> dict[str, list[dict]]:
     """Run ``table`` (one of ``TABLES`` or ``all``) and write ``OUT/T.json``, ``.md`` and ``.png``.
 
-    Returns the rows of each table written. Unknown table or scene names raise ValueError listing the
-    known ones, before any run starts.
+    Args:
+        methods: run only these of the tables' methods (e.g. to split one table over two processes
+            sharing ``out``: rows are keyed, so each process makes its own and both tables read all).
+
+    Returns the rows of each table written. Unknown table, method or scene names raise ValueError
+    listing the known ones, before any run starts.
     """
     names = list(TABLES) if table == "all" else [table]
     specs = {name: table_runs(name, scenes, seeds, agents) for name in names}  # checks the table names
     check_scenes(scenes)
+    if methods is not None:
+        offered = sorted({s.method for runs in specs.values() for s in runs})
+        unknown = [m for m in methods if m not in offered]
+        if unknown:
+            raise ValueError(f"methods {unknown} are not in table {table!r}; its methods: {', '.join(offered)}")
+        specs = {name: [s for s in runs if s.method in methods] for name, runs in specs.items()}
+        names = [name for name in names if specs[name]]
     out = Path(out)
     start = time.perf_counter()
     written = {}

@@ -11,6 +11,8 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass
 
+from mapping.team.global_map import GLOBAL_ENCODING_SCALE
+
 
 @dataclass(frozen=True)
 class Method:
@@ -31,9 +33,12 @@ class Method:
 
     def run_options(self) -> dict:
         """The keyword arguments of ``run`` this method sets."""
-        return {"policy": self.policy, "consistency": self.consistency, "cross_rendering": self.cross_rendering,
-                "global_map": self.global_map, "share_point_clouds": self.share_point_clouds,
-                "alignment": self.alignment}
+        options = {"policy": self.policy, "consistency": self.consistency, "cross_rendering": self.cross_rendering,
+                   "global_map": self.global_map, "share_point_clouds": self.share_point_clouds,
+                   "alignment": self.alignment}
+        if self.global_map:  # the global network's encoding (a library default) decides its rows too
+            options["global_encoding_scale"] = GLOBAL_ENCODING_SCALE
+        return options
 
     def as_dict(self) -> dict:
         return asdict(self)
