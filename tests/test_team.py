@@ -276,7 +276,8 @@ def _tiny_team(tiny_world, **overrides):
 
     streams = [_CountingStream(s) for s in world_streams(tiny_world, seed=0, segmentation_errors=False)]
     channel = overrides.pop("channel", ChannelConfig())
-    mapping = replace(mapping_config("tiny"), iterations_per_keyframe=2, refit_steps=10)
+    mapping = replace(mapping_config("tiny"), iterations_per_keyframe=2, refit_steps=10,
+                      global_frame=overrides.pop("global_frame", None))
     overrides.setdefault("consistency", ConsistencyConfig(iterations=2, rays_per_pose=64))
     config = TeamConfig(mapping=mapping, frames_per_round=4, **overrides)
     return Team(streams, config, world_vocabulary(tiny_world), seed=0, channel=channel, device="cpu"), streams
@@ -427,3 +428,19 @@ def test_merging_a_piece_into_an_instance_without_a_network_keeps_ids_in_step(ti
     assert target in m.mapper.live_ids() and m.mapper.keyframes.has_pixels(target)
     assert set(m.mapper.live_ids()) <= set(m.fusion.instances)
     m.parameter_message(1, 1, 1)  # every live instance has its code-book entry
+
+
+def test_a_global_map_covers_the_boxes_its_peers_mapped(tiny_world):
+    """A global map is meshed and cross-rendered inside its box: after an exchange it must reach as far
+    as any peer's frames did, not stop where its own frames did."""
+    from mapping.team.global_map import GLOBAL_INSTANCE_ID, scene_frame
+
+    team, _ = _tiny_team(tiny_world, global_map=True, global_frame=scene_frame(tiny_world.scene.size_m))
+    team.round(RoundPlan.never(2))
+    boxes = [m.mapper.slots[GLOBAL_INSTANCE_ID].bound for m in team.members]
+    union_lo, union_hi = np.minimum(boxes[0].lo, boxes[1].lo), np.maximum(boxes[0].hi, boxes[1].hi)
+    assert not all(np.allclose(b.lo, union_lo) and np.allclose(b.hi, union_hi) for b in boxes)  # they differ
+    team.round(RoundPlan.always(2))
+    for member in team.members:
+        bound = member.mapper.slots[GLOBAL_INSTANCE_ID].bound
+        assert np.all(bound.lo <= union_lo + 1e-6) and np.all(bound.hi >= union_hi - 1e-6)

@@ -283,18 +283,24 @@ class TeamMember:
 
     def _receive_global(self, message: ParameterMessage) -> dict:
         """Global maps share one frame (the scene box): the peer's network is this agent's global
-        instance, matched at once, or adopted when this agent has not mapped anything yet."""
+        instance, matched at once, or adopted when this agent has not mapped anything yet. Like a
+        matched instance, the global map's box then covers the peer's box too (every message, since
+        the peer's box grows as it explores): the map is meshed and cross-rendered inside its box, so
+        without this an agent's map would stop where its own frames did."""
+        from mapping.bounds import InstanceBound  # noqa: PLC0415
+
         matches = self.matches.setdefault(message.sender, {})
         counts = {"adopted": 0, "matched": 0}
         for inst in message.instances:
-            if inst.instance_id in matches:
-                continue
-            if GLOBAL_INSTANCE_ID not in self.mapper.slots:
-                self.mapper.adopt_instance(GLOBAL_INSTANCE_ID, _exported(inst))
-                counts["adopted"] += 1
-            else:
-                counts["matched"] += 1
-            matches[inst.instance_id] = GLOBAL_INSTANCE_ID
+            if inst.instance_id not in matches:
+                if GLOBAL_INSTANCE_ID not in self.mapper.slots:
+                    self.mapper.adopt_instance(GLOBAL_INSTANCE_ID, _exported(inst))
+                    counts["adopted"] += 1
+                else:
+                    counts["matched"] += 1
+                matches[inst.instance_id] = GLOBAL_INSTANCE_ID
+            self.mapper.grow_bound(GLOBAL_INSTANCE_ID, InstanceBound(inst.bound_lo.astype(np.float64),
+                                                                     inst.bound_hi.astype(np.float64)))
         return counts
 
     def _merge(self, piece: int, target: int) -> None:
