@@ -121,6 +121,17 @@ def test_json_and_markdown_writers_on_a_hand_made_row_set(tmp_path):
     assert "| openmulti | 100 % | 4 | 3 | 2.00 ± 0.00 | 1.00 ± 0.00 | 3.00 ± 0.00 |" in (tmp_path / "transmission.md").read_text()
 
 
+
+def test_several_scenes_get_a_per_scene_section():
+    rows = _rows() + [{**r, "scene": "office0", "comp_ratio": 50.0} for r in _rows() if r["method"] == "openmulti"]
+    md = markdown_table("geometric", rows)
+    section = md[md.index("Per scene"):]
+    assert "| method | success | agents | office0 | room0 |" in section
+    # openmulti: office0 50 (all seeds), room0 80-82 free space; 80 NICE-SLAM and unculled in both
+    assert "| openmulti | 100 % | 4 | 50.00 ± 0.00 / 80.00 ± 0.00 / 80.00 ± 0.00 | 81.00 ± 1.00 / 80.00 ± 0.00 / 80.00 ± 0.00 |" in section
+    assert "| dinerf_global | 100 % | 4 | - / - / - | 61.00 ± 1.00 / 60.00 ± 0.00 / 60.00 ± 0.00 |" in section
+    assert "Per scene" not in markdown_table("geometric", _rows())
+
 def test_unknown_names_get_a_clear_error_listing_the_known_ones(tmp_path):
     with pytest.raises(ValueError, match="unknown table 'table9'.*geometric.*comm-failure"):
         reproduce("table9", ["room0"], [0], "tiny", tmp_path)
