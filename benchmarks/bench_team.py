@@ -2,7 +2,8 @@
 
 Run: `.venv/bin/python benchmarks/bench_team.py [--scene room0] [--preset fast] [--configs always never ...]`.
 Each configuration is one `openmulti run` (its directory under --out); a finished one is not run again
-(delete its folder to re-measure). Prints a Markdown table and writes `--out/bench_team.json` and
+while its settings and the library's defaults it learns with are unchanged (`bench_key.json` beside its
+metrics; delete its folder to re-measure). Prints a Markdown table and writes `--out/bench_team.json` and
 `--out/bench_team.png`.
 
 Configurations (names): always, never, bernoulli:P, round_robin, no_cross (always without eq. 13),
@@ -21,6 +22,7 @@ from pathlib import Path
 
 import torch
 
+from openmulti_env.reproduce.runner import library_defaults
 from openmulti_env.results import write_json_atomic
 from openmulti_env.run import run
 
@@ -61,10 +63,13 @@ def main() -> None:
         agents = s.pop("agents", args.agents)
         policy = s.pop("policy")
         folder = out / f"{args.scene}_{args.preset}_s{args.seed}_{name.replace(':', '_')}"
-        done = folder / "metrics.json"
-        if not done.is_file():
+        done, key_file = folder / "metrics.json", folder / "bench_key.json"
+        key = {"scene": args.scene, "preset": args.preset, "seed": args.seed, "agents": agents, "policy": policy,
+               "options": s, "defaults": library_defaults(args.preset)}
+        if not (done.is_file() and key_file.is_file() and json.loads(key_file.read_text()) == key):
             start = time.perf_counter()
             run(args.scene, agents, policy, args.preset, args.seed, folder, device="cpu", threads=args.threads, **s)
+            write_json_atomic(key_file, key)
             print(f"[bench_team] {name}: {time.perf_counter() - start:.0f} s")
         m = json.loads(done.read_text())
         rows.append({"config": name, "agents": agents, **{k: m["mean"][k] for k in ("acc_cm", "comp_cm", "comp_ratio",
