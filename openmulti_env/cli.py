@@ -175,10 +175,12 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
 
     written = reproduce(args.table, args.scenes, args.seeds, args.preset, args.out, agents=args.agents,
                         threads=args.threads, device=args.device, three_cullings=not args.free_space_only,
-                        methods=args.methods)
-    for name in written:
-        print(Path(args.out, f"{name}.md").read_text())
-    print(f"Wrote {', '.join(f'{args.out}/{n}.json' for n in written)} (+ .md, .png)")
+                        methods=args.methods, run_missing=not args.tables_only)
+    for name, rows in written.items():
+        if rows:
+            print(Path(args.out, f"{name}.md").read_text())
+    done = [n for n, rows in written.items() if rows]
+    print(f"Wrote {', '.join(f'{args.out}/{n}.json' for n in done)} (+ .md, .png)" if done else "Wrote no table: no run is finished")
     return 0
 
 
@@ -281,6 +283,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="score with today's free-space culling only (skip the NICE-SLAM and unculled scores)")
     p.add_argument("--methods", nargs="+", metavar="M",
                    help="run only these of the table's methods (two processes can share --out this way)")
+    p.add_argument("--tables-only", action="store_true",
+                   help="make no run: write the tables from the runs already finished (missing ones are named)")
     p.set_defaults(func=cmd_reproduce)
 
     p = sub.add_parser("cache", help="the env's world-geometry cache: where it is, its size, --clear")

@@ -122,6 +122,20 @@ def test_json_and_markdown_writers_on_a_hand_made_row_set(tmp_path):
 
 
 
+
+def test_tables_only_writes_the_finished_runs_and_makes_none(tmp_path, capsys):
+    calls = []
+    reproduce("comm-failure", ["tiny"], [0], "tiny", tmp_path, run_fn=_fake_run(calls), progress=False,
+              methods=["openmulti"])
+    assert len(calls) == 4
+    written = reproduce("comm-failure", ["tiny"], [0], "tiny", tmp_path, run_fn=_fake_run(calls), progress=False,
+                        run_missing=False)
+    assert len(calls) == 4  # nothing more was run
+    assert [r["method"] for r in written["comm-failure"]] == ["openmulti"] * 4
+    said = capsys.readouterr().out
+    assert "4 of 8 runs not made yet" in said and "dinerf_global_tiny_s0_a4_p020_tiny" in said
+    assert json.loads((tmp_path / "comm-failure.json").read_text())["rows"] == written["comm-failure"]
+
 def test_several_scenes_get_a_per_scene_section():
     rows = _rows() + [{**r, "scene": "office0", "comp_ratio": 50.0} for r in _rows() if r["method"] == "openmulti"]
     md = markdown_table("geometric", rows)

@@ -91,10 +91,13 @@ def load_row(path: Path, settings: dict) -> dict | None:
 
 def run_table(specs: list[RunSpec], preset: str, out: Path, threads: int | None = 1, device: str = "cpu",
               three_cullings: bool = True, max_rounds: int | None = None, progress: bool = True,
-              run_fn: Callable[..., dict] | None = None, keep_files: bool = False) -> list[dict]:
+              run_fn: Callable[..., dict] | None = None, keep_files: bool = False,
+              run_missing: bool = True) -> list[dict]:
     """Run (or reuse) every spec; returns their rows in the specs' order.
 
     Args:
+        run_missing: False makes nothing: the rows already finished are returned (in order) and the
+            missing runs are only named (e.g. to write a table while other runs are still going).
         keep_files: keep each finished run's team checkpoint and meshes (by default they are deleted
             once its row is written: a ``fast`` team checkpoint is ~0.3 GB, the meshes ~0.2 GB, and a
             table needs tens of runs; ``metrics.json`` and ``rounds.json`` stay).
@@ -109,6 +112,11 @@ def run_table(specs: list[RunSpec], preset: str, out: Path, threads: int | None 
         rows.append(load_row(out / "rows" / f"{spec.key(preset)}.json", settings))
         if rows[-1] is None:
             todo.append(spec)
+    if not run_missing:
+        if todo:
+            print(f"[reproduce] {len(todo)} of {len(specs)} runs not made yet, left out: "
+                  + ", ".join(spec.key(preset) for spec in todo))
+        return [row for row in rows if row is not None]
     with tqdm(total=len(specs), initial=len(specs) - len(todo), desc="runs", unit="run", disable=not progress) as bar:
         for i, spec in enumerate(specs):
             if rows[i] is not None:
