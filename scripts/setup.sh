@@ -9,7 +9,7 @@ VENV=${VENV:-.venv}
 PY=${PYTHON:-python3}
 STAMP="$VENV/.setup-stamp"
 # Re-install when the dependency list or this script changes.
-WANT=$(cat pyproject.toml scripts/setup.sh | sha256sum | cut -d' ' -f1)
+WANT=$(cat pyproject.toml scripts/setup.sh scripts/constraints.txt | sha256sum | cut -d' ' -f1)
 
 need_pkgs=()
 # open3d needs libusb; headless pyrender needs EGL (Mesa) and OSMesa for the fallback platform.
@@ -33,7 +33,9 @@ echo "[setup] installing torch==2.13.0 (CPU)"
 "$PIP" install -q torch==2.13.0
 echo "[setup] installing openmulti, its dependencies and the RL clients the tests use"
 # torch is named again so that no dependency (SB3, TorchRL) can move it off the CPU build
-"$PIP" install -q -e ".[dev,test]" "torch==2.13.0"
+# every other package at the version in scripts/constraints.txt, the versions the README's figures were
+# measured with (two fresh set-ups a day apart gave figures up to 2.7 points apart; cause not isolated)
+"$PIP" install -q -c scripts/constraints.txt -e ".[dev,test]" "torch==2.13.0"
 # pyrender pins PyOpenGL 3.1.0, whose OSMesa binding lacks OSMesaCreateContextAttribs; 3.1.10 works
 # for both EGL and OSMesa (pip warns about the pin; it is harmless).
 "$PIP" install -q "PyOpenGL==3.1.10" 2>/dev/null || true
