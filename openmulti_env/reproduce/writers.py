@@ -164,15 +164,17 @@ def save_plot(path: Path, table: str, rows: list[dict]) -> None:
         ax.legend(fontsize=8)
     else:
         key = "f_miou" if table == "semantic" else "comp_ratio"
-        names, means, sds = [], [], []
-        for (method, _, agents), group in groups.items():
-            m, sd = mean_sd([r.get(key) for r in group])
-            names.append(method if table != "multi-vs-single" else f"{method} ({agents})")
-            means.append(m or 0.0)
-            sds.append(sd or 0.0)
-        ax.bar(range(len(names)), means, yerr=sds, capsize=3)
+        names = [method if table != "multi-vs-single" else f"{method} ({agents})" for method, _, agents in groups]
+        scenes = sorted({r["scene"] for r in rows})
+        width = 0.8 / len(scenes)
+        for k, scene in enumerate(scenes):  # one bar per method and scene (mean +- sd over seeds)
+            stats = [mean_sd([r.get(key) for r in group if r["scene"] == scene]) for group in groups.values()]
+            ax.bar([i + (k - (len(scenes) - 1) / 2) * width for i in range(len(names))], [m or 0.0 for m, _ in stats],
+                   width, yerr=[sd or 0.0 for _, sd in stats], capsize=2, label=scene)
+        if len(scenes) > 1:
+            ax.legend(fontsize=8)
         ax.set_xticks(range(len(names)), names, rotation=30, ha="right", fontsize=8)
-        ax.set_ylabel("F-mIoU" if key == "f_miou" else "completion ratio [%]")
+        ax.set_ylabel("F-mIoU" if key == "f_miou" else "completion ratio [%] (free-space culling)")
     ax.set_title(table)
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
