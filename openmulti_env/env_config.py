@@ -1,32 +1,33 @@
-"""The env's presets: how big an episode is and how hard the learner works per step.
+"""The env's settings: a preset of ``openmulti_env.presets`` (the same table ``openmulti run`` uses, so a
+name means the same episode in both) with keyword overrides.
 
-``tiny`` is for unit tests (2 agents in the small ``tiny`` room, 80x60 images, a few iterations),
-``fast`` for RL (4 agents in room0, 160x120 images, one keyframe and a few iterations per step),
-``full`` the paper's settings (the ``full`` run preset: 320x240 images, 200 frames per agent, 20
-iterations per keyframe). Every field can be overridden by keyword (``parallel_env(..., rays_per_object=
-100)``); an unknown keyword is an error listing the known ones.
+``rl`` (the default) and ``rl_tiny`` are the RL-sized presets; ``tiny``, ``demo``, ``fast`` and ``full`` are
+the runs' episodes. Every field can be overridden by keyword (``parallel_env(..., rays_per_object=100)``);
+an unknown keyword is an error listing the known ones.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, fields, replace
 
-from mapping.agent import MappingConfig
+from mapping.runtime import available_cores
 from mapping.team import ChannelConfig, ConsistencyConfig, ExchangeConfig, TeamConfig
 from mapping.team.consistency import CONSISTENCY_ALGORITHMS
-from openmulti_env.world.paths import PathConfig
-from openmulti_env.world.sensor import SensorConfig
-from mapping.runtime import available_cores
+from openmulti_env.presets import PRESET_NAMES, Preset, get_preset
 from openmulti_env.world.world import MAX_AGENTS, WorldConfig
 
-ENV_PRESETS = ("tiny", "fast", "full")
+DEFAULT_PRESET = "rl"
 REWARD_MODES = ("team", "individual")
 
 
 @dataclass(frozen=True)
 class EnvConfig:
-    """Everything that shapes an episode of the env (one field per keyword override)."""
+    """Everything that shapes an episode of the env (one field per keyword override; the defaults are
+    those of preset ``rl``, ``env_config`` takes another preset's)."""
 
+    preset: str = DEFAULT_PRESET
+    """The preset the other fields start from (``openmulti_env.presets``): its mapper settings beyond the
+    fields below (e.g. meshing voxels) come with it."""
     scene: str = "room0"
     """Scene preset name, ``random:SEED`` or a manifest path."""
     num_agents: int = 4
@@ -86,7 +87,7 @@ class EnvConfig:
     horizon: int | None = None
     """Steps before truncation (None: until the paths end). ``max_cycles`` is an alias."""
     text_encoder: str = "minilm"
-    """Caption encoder of the front end (the paper's SBERT all-MiniLM-L6-v2)."""
+    """Caption encoder of the front end: ``minilm`` (SBERT all-MiniLM-L6-v2, the paper's) or ``mpnet``."""
     device: str = "auto"
     """Learner device: cpu, cuda or auto."""
     threads: int | None = 1
@@ -126,21 +127,22 @@ class EnvConfig:
         return self
 
     # ---- what the parts are built from -----------------------------------------------------------
+    def _preset_with_overrides(self) -> Preset:
+        """The preset with this config's fields in place of its own."""
+        base = get_preset(self.preset)
+        mapping = replace(base.mapping, keyframe_every=self.keyframe_every,
+                          iterations_per_keyframe=self.iterations_per_keyframe, rays_per_object=self.rays_per_object,
+                          rays_per_structure=self.rays_per_structure, refit_steps=self.refit_steps)
+        return replace(base, mapping=mapping, **{f: getattr(self, f) for f in _PRESET_FIELDS})
+
     def world_config(self) -> WorldConfig:
-        return WorldConfig(num_agents=self.num_agents,
-                           path=PathConfig(frames_per_agent=self.frames_per_agent, planning_points=self.planning_points),
-                           sensor=SensorConfig(width=self.image_width, height=self.image_height),
-                           culling_edge_m=self.culling_edge_m)
+        return self._preset_with_overrides().world_config(self.num_agents)
 
     def team_config(self) -> TeamConfig:
-        mapping = MappingConfig(keyframe_every=self.keyframe_every, iterations_per_keyframe=self.iterations_per_keyframe,
-                                rays_per_object=self.rays_per_object, rays_per_structure=self.rays_per_structure,
-                                refit_steps=self.refit_steps)
-        return TeamConfig(mapping=mapping, frames_per_round=self.frames_per_round, alignment=self.alignment,
-                          consistency=ConsistencyConfig(algorithm=self.consistency, iterations=self.consistency_iterations,
-                                                        cross_rendering=self.cross_rendering,
-                                                        rays_per_pose=self.rays_per_pose),
-                          exchange=ExchangeConfig(float16=self.float16, changed_only=self.changed_only))
+        return self._preset_with_overrides().team_config(
+            alignment=self.alignment,
+            consistency=ConsistencyConfig(algorithm=self.consistency, cross_rendering=self.cross_rendering),
+            exchange=ExchangeConfig(float16=self.float16, changed_only=self.changed_only))
 
     def workers(self) -> int:
         """Agent worker threads: ``agent_workers``, or one per core up to one per agent."""
@@ -151,27 +153,31 @@ class EnvConfig:
         return ChannelConfig(self.success_probability, budget)
 
 
-_PRESETS: dict[str, dict] = {
-    "tiny": dict(scene="tiny", num_agents=2, frames_per_agent=16, image_width=80, image_height=60,
-                 planning_points=1500, culling_edge_m=0.1, frames_per_round=2, keyframe_every=2,
-                 iterations_per_keyframe=1, rays_per_object=24, rays_per_structure=48, consistency_iterations=1,
-                 rays_per_pose=24, refit_steps=10, probe_points=600, map_size=48),
-    "fast": dict(),
-    "full": dict(frames_per_agent=200, image_width=320, image_height=240, frames_per_round=10, keyframe_every=2,
-                 iterations_per_keyframe=20, rays_per_object=120, rays_per_structure=300, consistency_iterations=5,
-                 rays_per_pose=256, refit_steps=60, probe_points=10000, map_size=96),
-}
-FIELD_NAMES = tuple(f.name for f in fields(EnvConfig))
+_PRESET_FIELDS = ("frames_per_agent", "image_width", "image_height", "planning_points", "culling_edge_m",
+                  "frames_per_round", "consistency_iterations", "rays_per_pose", "text_encoder", "scene", "num_agents",
+                  "probe_points", "map_size")
+"""EnvConfig fields that are ``Preset`` fields of the same name."""
+_MAPPING_FIELDS = ("keyframe_every", "iterations_per_keyframe", "rays_per_object", "rays_per_structure", "refit_steps")
+"""EnvConfig fields that are ``MappingConfig`` fields of the same name."""
 
 
-def env_config(preset: str = "fast", **overrides) -> EnvConfig:
+def preset_fields(preset: Preset) -> dict:
+    """The EnvConfig fields a preset sets."""
+    return {**{f: getattr(preset, f) for f in _PRESET_FIELDS},
+            **{f: getattr(preset.mapping, f) for f in _MAPPING_FIELDS}, "preset": preset.name}
+
+
+FIELD_NAMES = tuple(f.name for f in fields(EnvConfig) if f.name != "preset")
+
+
+def env_config(preset: str = DEFAULT_PRESET, **overrides) -> EnvConfig:
     """The preset's settings with ``overrides`` applied (``None`` values keep the preset's, except for
     the fields whose None means something: horizon, comm_budget_mb, changed_only, threads, cache_dir)."""
-    if preset not in _PRESETS:
-        raise ValueError(f"unknown preset {preset!r}; choose one of {ENV_PRESETS}")
+    if preset not in PRESET_NAMES:
+        raise ValueError(f"unknown preset {preset!r}; choose one of {PRESET_NAMES}")
     unknown = sorted(set(overrides) - set(FIELD_NAMES))
     if unknown:
         raise TypeError(f"unknown env option(s) {unknown}; the options are {list(FIELD_NAMES)}")
     nullable = {"horizon", "comm_budget_mb", "changed_only", "threads", "cache_dir", "agent_workers"}
     chosen = {k: v for k, v in overrides.items() if v is not None or k in nullable}
-    return replace(EnvConfig(**_PRESETS[preset]), **chosen).validate()
+    return replace(EnvConfig(**preset_fields(get_preset(preset))), **chosen).validate()

@@ -87,7 +87,6 @@ from gymnasium.utils import EzPickle, seeding
 from pettingzoo import ParallelEnv
 from pettingzoo.utils import parallel_to_aec, wrappers
 
-from mapping.evaluate.probe import surface_probe_coverage
 from mapping.perception import shared_text_encoder
 from mapping.runtime import set_threads
 from mapping.team import Team
@@ -112,7 +111,7 @@ class OpenMultiParallelEnv(ParallelEnv, EzPickle):
     metadata = {"name": "openmulti_v0", "render_modes": list(RENDER_MODES), "render_fps": 2,
                 "is_parallelizable": True}
 
-    def __init__(self, scene: str | None = None, num_agents: int | None = None, preset: str = "fast",
+    def __init__(self, scene: str | None = None, num_agents: int | None = None, preset: str = "rl",
                  seed: int | None = None, render_mode: str | None = None, comm_budget_mb: float | None = None,
                  reward: str = "team", max_cycles: int | None = None, **overrides):
         EzPickle.__init__(self, scene=scene, num_agents=num_agents, preset=preset, seed=seed, render_mode=render_mode,
@@ -178,6 +177,7 @@ class OpenMultiParallelEnv(ParallelEnv, EzPickle):
             gc.collect()
         self.team = Team(streams, cfg.team_config(), self._vocabulary, seed=episode_seed,
                          channel=cfg.channel_config(), device=cfg.device, workers=cfg.workers())
+        self._snapshots = self.team.snapshots()
         self.agents = list(self.possible_agents)
         self.steps = 0
         self._observers = [AgentObservation(self._grid) for _ in self.agents]
@@ -220,13 +220,12 @@ class OpenMultiParallelEnv(ParallelEnv, EzPickle):
         except ActionError as exc:
             raise ActionError(f"{exc} (action space of each agent: {self._action_space})") from None
         report = self.team.round(plan)
+        self._snapshots = report.agents
         t1 = time.perf_counter()
-        for i, member in enumerate(self.team.members):
-            self._observers[i].add_frames([member.stream.read(k)[0] for k in range(
-                member.next_frame - report.frames_read[i], member.next_frame)])
+        for observer, snapshot in zip(self._observers, self._snapshots):
+            observer.add_frames(list(snapshot.new_frames))
         gains = np.zeros(len(self.agents))
-        self._covered = self.team.each_member(
-            lambda m: surface_probe_coverage(m.mapper, self._probe_points, self._probe_normals))
+        self._covered = self.team.surface_coverage(self._probe_points, self._probe_normals)
         for i in range(len(self.agents)):
             ratio = float(np.mean(self._covered[i]))
             gains[i], self._completion[i] = ratio - self._completion[i], ratio
@@ -252,10 +251,7 @@ class OpenMultiParallelEnv(ParallelEnv, EzPickle):
         cfg = self.config
         n = len(self.possible_agents)
         mb = np.asarray(report.bytes_sent, float) / 1e6
-        refused = np.zeros(n)
-        for d in report.deliveries:
-            if d["status"] == "over_budget":
-                refused[d["sender"]] += 1
+        refused = np.asarray([snapshot.messages["over_budget"] for snapshot in report.agents], float)
         own = gains - cfg.comm_cost_per_mb * mb - cfg.budget_penalty * refused
         if cfg.reward == "individual":
             values = own
@@ -265,37 +261,32 @@ class OpenMultiParallelEnv(ParallelEnv, EzPickle):
 
     # ---- observations, infos, state ----------------------------------------------------------------
     def _observe(self, i: int) -> np.ndarray:
-        member = self.team.members[i]
+        """Agent i's observation from its snapshot (its own knowledge) and the probe channels."""
+        snapshot = self._snapshots[i]
         height, coverage = self._probes.channels(self._covered[i])
-        boxes = [(p.bound_lo, p.bound_hi) for table in member.held.values() for p in table.values()
-                 if p.bank == "object"]
-        position = self.world.agent_poses[i][member.next_frame - 1][:3, 3] if member.next_frame else None
-        peers = peer_plane(self._grid, member.peer_positions, self.team.round_index - 1)
-        return self._observers[i].assemble(height, coverage, received_plane(self._grid, boxes), position, peers,
-                                           self._budget_share(i))
+        boxes = [box for peer in snapshot.peers.values() for box in peer.held_object_boxes]
+        known = {p: k.position for p, k in snapshot.peers.items() if k.position is not None}
+        peers = peer_plane(self._grid, known, snapshot.rounds - 1)
+        return self._observers[i].assemble(height, coverage, received_plane(self._grid, boxes), snapshot.position,
+                                           peers, self._budget_share(snapshot))
 
-    def _budget_share(self, i: int) -> float:
-        budget = self.team.channel_config.budget_bytes
-        if budget is None:
+    def _budget_share(self, snapshot) -> float:
+        if self.config.comm_budget_mb is None:
             return 1.0
-        return float(self.team.channel.budget_left(i) / budget) if budget > 0 else 0.0
+        budget = self.config.comm_budget_mb * 1e6
+        return float(snapshot.budget_left_bytes / budget) if budget > 0 else 0.0
 
     def _info(self, i: int, report, gain_pct: float) -> dict[str, float]:
-        member, channel = self.team.members[i], self.team.channel
-        counts = {"delivered": 0, "dropped": 0, "over_budget": 0}
-        for d in (report.deliveries if report is not None else ()):
-            if d["sender"] == i:
-                counts[d["status"]] += 1
-        own_ids = [k for k in member.mapper.live_ids() if member.mapper.keyframes.has_pixels(k)]
+        snapshot = self._snapshots[i]
         info = {"completion_ratio": 100.0 * float(self._completion[i]), "completion_gain": float(gain_pct),
-                "bytes_sent": float(report.bytes_sent[i]) if report is not None else 0.0,
-                "bytes_received": float(report.bytes_received[i]) if report is not None else 0.0,
-                "bytes_sent_total": float(channel.bytes_sent[i]),
-                "budget_left_mb": float(channel.budget_left(i) / 1e6),
-                "messages_delivered": float(counts["delivered"]), "messages_dropped": float(counts["dropped"]),
-                "messages_refused": float(counts["over_budget"]),
-                "instances": float(len(member.mapper.live_ids())),
-                "instances_received": float(len(member.mapper.live_ids()) - len(own_ids)),
+                "bytes_sent": float(snapshot.bytes_sent), "bytes_received": float(snapshot.bytes_received),
+                "bytes_sent_total": float(snapshot.bytes_sent_total),
+                "budget_left_mb": float(snapshot.budget_left_bytes / 1e6),
+                "messages_delivered": float(snapshot.messages["delivered"]),
+                "messages_dropped": float(snapshot.messages["dropped"]),
+                "messages_refused": float(snapshot.messages["over_budget"]),
+                "instances": float(snapshot.instances),
+                "instances_received": float(snapshot.instances - snapshot.instances_own),
                 "step": float(self.steps)}
         assert tuple(info) == INFO_KEYS
         return info
@@ -323,8 +314,8 @@ class OpenMultiParallelEnv(ParallelEnv, EzPickle):
         tiles = [agent_tile(self._observe(i), AGENT_COLOURS[i % len(AGENT_COLOURS)])
                  for i in range(len(self.possible_agents))]
         paths, positions = [], []
-        for i, member in enumerate(self.team.members):
-            xy = self.world.agent_poses[i][:member.next_frame, :3, 3]
+        for i, snapshot in enumerate(self._snapshots):
+            xy = self.world.agent_poses[i][:snapshot.frames_read, :3, 3]
             rows, cols, inside = self._grid.cells(xy)
             paths.append(list(zip(rows[inside], cols[inside])))
             positions.append((rows[-1], cols[-1]) if len(xy) and inside[-1] else None)

@@ -238,7 +238,6 @@ def _run_rounds(team: Team, policy: ScriptedPolicy, checkpoint: Path, every: int
             infos = {f"agent_{a}": {"budget_left_mb": team.channel.budget_left(a) / 1e6} for a in range(n)}
             plan = actions_to_plan(policy(infos, team.round_index), [f"agent_{a}" for a in range(n)])
             report = team.round(plan).as_dict()
-            report.pop("deliveries")
             reports.append(report)
             bar.set_postfix(MB=f"{sum(report['bytes_sent']) / 1e6:.1f}", fleet_s=f"{report['fleet_s']:.1f}",
                             instances=sum(len(m.mapper.live_ids()) for m in team.members))

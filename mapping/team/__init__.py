@@ -8,6 +8,7 @@
     config        TeamConfig, ConsistencyConfig, ExchangeConfig
     global_map    the global-map mode (one network for the scene: the global baselines)
     member        one agent: online fusion, mapper, what it holds of its peers
+    report        RoundReport, AgentSnapshot (what each agent knows after a round) and their parts
     team          Team.round(plan) -> RoundReport, checkpoints
 """
 
@@ -16,8 +17,11 @@ from mapping.team.config import ConsistencyConfig, ExchangeConfig, TeamConfig
 from mapping.team.member import AgentStream, TeamMember, Vocabulary
 from mapping.team.messages import (InstancePayload, MessageError, ParameterMessage, PointCloudMessage, RayMessage,
                                    from_bytes, to_bytes)
-from mapping.team.team import ChannelConfig, PlanError, RoundPlan, RoundReport, Team
+from mapping.team.report import (AgentSnapshot, AlignmentCounts, ConsistencyTerms, DeliveryRecord, LossTerms,
+                                 PeerKnowledge, RoundReport)
+from mapping.team.team import ChannelConfig, PlanError, RoundPlan, Team
 
-__all__ = ["AgentStream", "Channel", "ChannelConfig", "ConsistencyConfig", "Delivery", "ExchangeConfig",
+__all__ = ["AgentSnapshot", "AlignmentCounts", "ConsistencyTerms", "DeliveryRecord", "LossTerms", "PeerKnowledge",
+           "AgentStream", "Channel", "ChannelConfig", "ConsistencyConfig", "Delivery", "ExchangeConfig",
            "InstancePayload", "MessageError", "ParameterMessage", "PlanError", "PointCloudMessage", "RayMessage", "RoundPlan",
            "RoundReport", "Team", "TeamConfig", "TeamMember", "Vocabulary", "from_bytes", "to_bytes"]

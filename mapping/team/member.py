@@ -33,6 +33,7 @@ from mapping.team.cross_rendering import (instance_render_consistency_loss, peer
                                          render_consistency_loss)
 from mapping.team.global_map import GLOBAL_INSTANCE_ID, as_global_image, global_entry
 from mapping.team.messages import InstancePayload, ParameterMessage, PointCloudMessage, RayMessage
+from mapping.team.report import AgentSnapshot, AlignmentCounts, ConsistencyTerms, PeerKnowledge
 
 
 class AgentStream(Protocol):
@@ -104,6 +105,7 @@ class TeamMember:
         self.peer_positions: dict[int, tuple[int, np.ndarray]] = {}  # peer -> (round, (3,) position) from its rays
         self._shadow: dict[int, tuple[int, list, list]] = {}
         self._unacknowledged: dict[int, tuple[dict, dict]] = {}  # receiver -> bookkeeping of the message in flight
+        self._last_position: np.ndarray | None = None
 
     @property
     def name(self) -> str:
@@ -228,7 +230,7 @@ class TeamMember:
                           (k.fx, k.fy, k.cx, k.cy, k.width, k.height), seed, c.rays_per_pose)
 
     # ---- 5: arrival ------------------------------------------------------------------------------
-    def receive_parameters(self, message: ParameterMessage) -> dict:
+    def receive_parameters(self, message: ParameterMessage) -> AlignmentCounts:
         """Hold the peer's instances; align the newly described ones (match / merge / adopt); agree on
         frames and grow boxes for matched ones. Returns counts of what happened."""
         peer = message.sender
@@ -238,9 +240,9 @@ class TeamMember:
             held[inst.instance_id] = inst
         self.held_round[peer] = message.round
         self.peer_degrees[peer] = message.degree
-        counts = {"adopted": 0, "matched": 0, "merged": 0}
+        counts = AlignmentCounts()
         if self.config.global_map:
-            return {**counts, **self._receive_global(message), "refit": 0}
+            return self._receive_global(message)
         new = {i.instance_id: i for i in message.instances if i.cloud is not None and i.instance_id not in matches}
         if self.config.alignment:
             own = {iid: InstanceView(inst.points, inst.caption_feature, inst.confidence)
@@ -257,18 +259,18 @@ class TeamMember:
                                                   payload.caption_feature.astype(np.float32), payload.confidence)
                 self.labels[own_id] = self.vocabulary.label(payload.caption_feature.astype(np.float32))
                 self.mapper.adopt_instance(own_id, _exported(payload))
-                counts["adopted"] += 1
+                counts.adopted += 1
             else:
                 own_id = d.own_id
                 for piece in d.merged:
                     self._merge(piece, own_id)
-                    counts["merged"] += 1
+                    counts.merged += 1
                 if own_id not in self.mapper.slots:  # seen in a non-keyframe only: start from the peer's network
                     self.mapper.adopt_instance(own_id, _exported(payload))
                 if d.take_meaning:
                     self.meaning[own_id] = (payload.caption, payload.caption_feature.astype(np.float32),
                                             payload.confidence)
-                counts["matched"] += 1
+                counts.matched += 1
             matches[d.peer_id] = own_id
         frames = {}
         for inst in message.instances:
@@ -278,10 +280,10 @@ class TeamMember:
                 frames[own_id] = frame
         if frames:
             self.mapper.set_frames(frames)  # one batched refit per bank
-        counts["refit"] = len(frames)
+        counts.refit = len(frames)
         return counts
 
-    def _receive_global(self, message: ParameterMessage) -> dict:
+    def _receive_global(self, message: ParameterMessage) -> AlignmentCounts:
         """Global maps share one frame (the scene box): the peer's network is this agent's global
         instance, matched at once, or adopted when this agent has not mapped anything yet. Like a
         matched instance, the global map's box then covers the peer's box too (every message, since
@@ -290,14 +292,14 @@ class TeamMember:
         from mapping.bounds import InstanceBound  # noqa: PLC0415
 
         matches = self.matches.setdefault(message.sender, {})
-        counts = {"adopted": 0, "matched": 0}
+        counts = AlignmentCounts()
         for inst in message.instances:
             if inst.instance_id not in matches:
                 if GLOBAL_INSTANCE_ID not in self.mapper.slots:
                     self.mapper.adopt_instance(GLOBAL_INSTANCE_ID, _exported(inst))
-                    counts["adopted"] += 1
+                    counts.adopted += 1
                 else:
-                    counts["matched"] += 1
+                    counts.matched += 1
                 matches[inst.instance_id] = GLOBAL_INSTANCE_ID
             self.mapper.grow_bound(GLOBAL_INSTANCE_ID, InstanceBound(inst.bound_lo.astype(np.float64),
                                                                      inst.bound_hi.astype(np.float64)))
@@ -343,7 +345,7 @@ class TeamMember:
         self.peer_positions[message.sender] = (message.round, np.asarray(message.poses[-1][:3, 3], np.float64))
 
     # ---- 6: consistency iterations ---------------------------------------------------------------
-    def consistency_round(self, ray_messages: Sequence[RayMessage]) -> dict:
+    def consistency_round(self, ray_messages: Sequence[RayMessage]) -> ConsistencyTerms:
         """Data loss + parameter consistency (eq. 12) + render consistency (eq. 13) iterations."""
         c = self.config.consistency
         start = time.perf_counter()
@@ -365,10 +367,11 @@ class TeamMember:
         rays = [rays_of_message(m, self.mapper.device) for m in ray_messages if m.sender in self.held] \
             if c.cross_rendering else []
         senders = [m.sender for m in ray_messages if m.sender in self.held] if c.cross_rendering else []
-        terms = {"parameter": 0.0, "render": 0.0, "render_rays": 0}
+        terms = ConsistencyTerms()
         n_pairs = sum(len(p) for p in pairs.values())
         if n_pairs == 0 and not rays:
-            return {**terms, "pairs": 0, "seconds": time.perf_counter() - start}
+            terms.seconds = time.perf_counter() - start
+            return terms
 
         own_fields, own_labels = self._own_fields()
         observed = self.mapper.keyframes.observes if c.blind_zones_only else None
@@ -387,7 +390,7 @@ class TeamMember:
                     total = total + consensus_penalty(bank.params, anchors[name], pairs[name], c.penalty_rho)
                 elif c.algorithm == "dinno":
                     total = total + dinno_penalty(bank.params, anchors[name], self.duals[name], pairs[name], c.penalty_rho)
-            terms["parameter"] = float(total.detach())
+            terms.parameter = float(total.detach())
             render = torch.zeros((), device=self.mapper.device)
             used = 0
             for target in targets:
@@ -397,11 +400,12 @@ class TeamMember:
                 else:
                     loss = render_consistency_loss(own_fields, target, c.samples_per_box, c.free_space_weight)
                 render, used = render + loss, used + len(target)
-            terms["render"], terms["render_rays"] = float(render.detach()), used
+            terms.render, terms.render_rays = float(render.detach()), used
             return total + c.render_weight * render
 
-        loss = self.mapper.train(c.iterations, extra) if c.iterations else 0.0
-        return {**terms, "loss": loss, "pairs": n_pairs, "seconds": time.perf_counter() - start}
+        terms.loss = self.mapper.train(c.iterations, extra) if c.iterations else 0.0
+        terms.pairs, terms.seconds = n_pairs, time.perf_counter() - start
+        return terms
 
     def _pairs(self, bank_name: str) -> ConsistencyPairs:
         """(own row, peer vector) of every instance both hold in one frame, one peer vector per own row
@@ -467,6 +471,25 @@ class TeamMember:
             labels.append(torch.as_tensor([p.instance_id for p in items], dtype=torch.long, device=own_bank.device))
         self._shadow[peer] = (key, fields, labels)
         return fields, labels
+
+    # ---- what this agent knows ---------------------------------------------------------------------
+    def snapshot(self, rounds: int, new_frames: Sequence[Frame], budget_left_bytes: float,
+                 bytes_sent_total: int) -> AgentSnapshot:
+        """This agent's own knowledge now (``new_frames``: what it read in the last round; the budget and
+        byte count come from its side of the channel)."""
+        peers = {}
+        for peer, table in self.held.items():
+            boxes = tuple((p.bound_lo, p.bound_hi) for p in table.values() if p.bank == "object")
+            peers[peer] = PeerKnowledge(len(table), boxes, self.held_round.get(peer), self.peer_positions.get(peer))
+        for peer, position in self.peer_positions.items():
+            if peer not in peers:
+                peers[peer] = PeerKnowledge(0, (), None, position)
+        live = self.mapper.live_ids()
+        own = sum(1 for iid in live if self.mapper.keyframes.has_pixels(iid))
+        position = np.asarray(new_frames[-1].pose[:3, 3], np.float64) if new_frames else self._last_position
+        self._last_position = position
+        return AgentSnapshot(self.index, rounds, self.next_frame, tuple(new_frames), position, len(live), own, peers,
+                             float(budget_left_bytes), int(bytes_sent_total))
 
     # ---- outputs ---------------------------------------------------------------------------------
     def entry(self, iid: int) -> CodeBookEntry:

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import time
 import zlib
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Sequence
 
@@ -27,6 +27,8 @@ from mapping.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
 from mapping.team.channel import DELIVERED, DROPPED, OVER_BUDGET, Channel
 from mapping.team.member import AgentStream, TeamConfig, TeamMember, Vocabulary
 from mapping.team.messages import ParameterMessage, RayMessage
+from mapping.team.report import (AgentSnapshot, AlignmentCounts, ConsistencyTerms, DeliveryRecord, LossTerms,
+                                 RoundReport)
 from mapping.team.state import member_state, restore_member
 
 
@@ -65,45 +67,6 @@ class RoundPlan:
                 raise PlanError(f"plan.{name} has self-links (diagonal entries {np.flatnonzero(np.diag(m)).tolist()})")
             out.append(m.copy())
         return RoundPlan(*out)
-
-
-@dataclass
-class RoundReport:
-    """What one round did. Per-agent lists are indexed by agent; losses by agent name."""
-
-    round: int
-    frames_read: list[int]
-    keyframes: list[int]
-    bytes_per_link: np.ndarray  # (N, N) bytes sent i -> j this round
-    bytes_sent: list[int]
-    bytes_received: list[int]
-    delivered: int
-    dropped: int
-    over_budget: int
-    deliveries: list[dict]
-    alignment: dict[str, dict]
-    losses: dict[str, dict]
-    local_s: list[float]
-    consistency_s: list[float]
-    exchange_s: float
-    done: bool
-
-    @property
-    def compute_s(self) -> list[float]:
-        """Each agent's own compute seconds this round."""
-        return [a + b for a, b in zip(self.local_s, self.consistency_s)]
-
-    @property
-    def fleet_s(self) -> float:
-        """Wall clock of a fleet with one computer per robot: slowest local phase + exchange + slowest
-        consistency phase."""
-        return max(self.local_s, default=0.0) + self.exchange_s + max(self.consistency_s, default=0.0)
-
-    def as_dict(self) -> dict:
-        d = asdict(self)
-        d["bytes_per_link"] = self.bytes_per_link.tolist()
-        d["compute_s"], d["fleet_s"] = self.compute_s, self.fleet_s
-        return d
 
 
 @dataclass(frozen=True)
@@ -189,8 +152,7 @@ class Team:
                     d = self.channel.transmit(message)
                     if d.kind == "params":
                         self.members[i].acknowledge(j, d.status == DELIVERED)
-                    deliveries.append({"sender": i, "receiver": j, "kind": d.kind, "status": d.status,
-                                       "bytes": d.bytes})
+                    deliveries.append(DeliveryRecord(i, j, d.kind, d.status, d.bytes))
                     if d.status == DELIVERED and d.kind != "points":  # clouds are counted, not learned from
                         (params_in if d.kind == "params" else rays_in)[j].append(d.message)
                         if d.kind != "params":
@@ -198,33 +160,49 @@ class Team:
         exchange_s = time.perf_counter() - start
 
         # ---- arrival and consistency, each receiver on its own ---------------------------------------
-        def receive_and_agree(member: TeamMember) -> tuple[dict, dict, float]:
+        def receive_and_agree(member: TeamMember) -> tuple[AlignmentCounts, ConsistencyTerms, float]:
             t0 = time.perf_counter()
-            counts = {"adopted": 0, "matched": 0, "merged": 0, "refit": 0}
+            counts = AlignmentCounts()
             for message in params_in[member.index]:
-                for k, v in member.receive_parameters(message).items():
-                    counts[k] += v
+                counts.add(member.receive_parameters(message))
             arrival = time.perf_counter() - t0
             terms = member.consistency_round(rays_in[member.index])
-            return counts, terms, arrival + terms.pop("seconds")
+            return counts, terms, arrival + terms.seconds
 
         alignment, losses, consistency_s = {}, {}, []
         for member, (counts, terms, seconds) in zip(self.members, self.each_member(receive_and_agree)):
             alignment[member.name] = counts
-            losses[member.name] = {"data": local[member.index].loss,
-                                   "local_parameter": local[member.index].parameter, **terms}
+            losses[member.name] = LossTerms(local[member.index].loss, local[member.index].parameter, terms)
             consistency_s.append(seconds)
         self.round_index += 1
-        statuses = [d["status"] for d in deliveries]
+        statuses = [d.status for d in deliveries]
+        sent, received = self.channel.bytes_sent - sent0, self.channel.bytes_received - recv0
+        snapshots = self.snapshots([[f for f, _ in read[0]] for read in reads])
+        for snap in snapshots:
+            mine = [d.status for d in deliveries if d.sender == snap.index]
+            snap.messages.update({status: mine.count(status) for status in snap.messages})
+            snap.bytes_sent, snap.bytes_received = int(sent[snap.index]), int(received[snap.index])
         return RoundReport(
             round=t, frames_read=[len(r.frames) for r in local], keyframes=[r.keyframes for r in local],
-            bytes_per_link=self.channel.link_bytes - link0,
-            bytes_sent=(self.channel.bytes_sent - sent0).tolist(),
-            bytes_received=(self.channel.bytes_received - recv0).tolist(),
+            bytes_per_link=self.channel.link_bytes - link0, bytes_sent=sent.tolist(), bytes_received=received.tolist(),
             delivered=statuses.count(DELIVERED), dropped=statuses.count(DROPPED),
             over_budget=statuses.count(OVER_BUDGET), deliveries=deliveries, alignment=alignment, losses=losses,
             local_s=[r.seconds for r in local], consistency_s=consistency_s, exchange_s=max(exchange_s, 0.0),
-            done=self.done)
+            done=self.done, agents=snapshots)
+
+    def snapshots(self, new_frames: Sequence[Sequence] | None = None) -> list[AgentSnapshot]:
+        """Each agent's own knowledge now (``new_frames[i]``: the frames agent i read in the last round;
+        none when not given, e.g. before the first round)."""
+        return [m.snapshot(self.round_index, new_frames[m.index] if new_frames is not None else (),
+                           self.channel.budget_left(m.index), int(self.channel.bytes_sent[m.index]))
+                for m in self.members]
+
+    def surface_coverage(self, points: np.ndarray, normals: np.ndarray) -> list[np.ndarray]:
+        """Per agent, which surface samples its map reproduces (``mapping.evaluate.probe``): the reward's and
+        the evaluation's view of a map, never an agent's observation. Runs on the worker threads."""
+        from mapping.evaluate.probe import surface_probe_coverage  # noqa: PLC0415
+
+        return self.each_member(lambda m: surface_probe_coverage(m.mapper, points, normals))
 
     def each_member(self, job):
         """``job(member)`` for every member, results in member order; side by side on ``workers``
