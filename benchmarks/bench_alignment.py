@@ -33,8 +33,8 @@ from mapping.alignment import ALIGNMENT_MODES, align_team, id_consistency, id_pu
 from mapping.evaluate.semantic import score_semantics
 from mapping.perception import shared_text_encoder
 from mapping.perception.errors import SegmentationErrorConfig
-from openmulti_env.run_presets import world_config
-from openmulti_env.results import write_json_atomic
+from openmulti_env.presets import world_config
+from mapping.pipeline.records import write_json_atomic
 from openmulti_env.team_perception import FrontEndConfig, category_vocabulary, perceive_team, semantic_ground_truth
 from openmulti_env.world import World
 

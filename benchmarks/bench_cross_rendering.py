@@ -56,8 +56,8 @@ def run_key(overrides: dict, scene: str, preset: str, seed: int) -> dict:
     from dataclasses import asdict
 
     from mapping.team import ConsistencyConfig
-    from openmulti_env.reproduce.runner import library_defaults
-    from openmulti_env.run import as_record
+    from openmulti_env.runs.reproduce.runner import library_defaults
+    from openmulti_env.runs.run import as_record
 
     defaults = library_defaults(preset)
     return {"scene": scene, "preset": preset, "seed": seed,
@@ -89,9 +89,9 @@ def run_variant(name: str, overrides: dict, scene: str, preset: str, seed: int, 
     from mapping.perception import shared_text_encoder
     from mapping.runtime import set_threads
     from mapping.team import ChannelConfig, ConsistencyConfig, RoundPlan, Team
-    from openmulti_env.run import _map_structure
-    from openmulti_env.run_presets import team_config, world_config
-    from openmulti_env.sim_team import world_streams, world_vocabulary
+    from openmulti_env.runs.run import _map_structure
+    from openmulti_env.presets import team_config, world_config
+    from openmulti_env.world.stream import world_streams, world_vocabulary
     from openmulti_env.world import World
     from tqdm import tqdm
 
@@ -99,7 +99,7 @@ def run_variant(name: str, overrides: dict, scene: str, preset: str, seed: int, 
     world = World.build(scene, seed=seed, config=world_config(preset, 4))
     encoder = shared_text_encoder()
     mapping, _ = _map_structure(world, preset, False, 128)
-    config = team_config(preset, mapping=mapping, consistency=ConsistencyConfig(**overrides))
+    config = team_config(preset, mapping=mapping, consistency=overrides)
     team = Team(world_streams(world, seed, True, text_encoder=encoder), config, world_vocabulary(world, encoder),
                 seed=seed, channel=ChannelConfig(1.0, None), device="cpu")
     start = time.perf_counter()
@@ -132,7 +132,7 @@ def main() -> None:
     unknown = [v for v in args.variants if v not in VARIANTS]
     if unknown:
         parser.error(f"unknown variants {unknown}; known: {', '.join(VARIANTS)}")
-    from openmulti_env.results import write_json_atomic
+    from mapping.pipeline.records import write_json_atomic
 
     args.out.mkdir(parents=True, exist_ok=True)
     rows = []

@@ -2,7 +2,7 @@
 world cache, memory over many episodes, and how closely the probe estimate of completion ratio tracks
 the mesh-based metric over whole episodes.
 
-Run: `.venv/bin/python benchmarks/bench_env.py [--presets tiny fast] [--episodes 3] [--memory-episodes 20]
+Run: `.venv/bin/python benchmarks/bench_env.py [--presets rl_tiny rl] [--episodes 3] [--memory-episodes 20]
 [--correlation-every 2]`. Random actions (each entry 1 with probability 1/2). Prints Markdown tables and
 writes `--out/bench_env.json`, `--out/estimate_vs_mesh.png` and `--out/render_<preset>.png`.
 """
@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from openmulti_env import parallel_env
-from openmulti_env.results import write_json_atomic
+from mapping.pipeline.records import write_json_atomic
 
 PARTS = ("local_s", "consistency_s", "exchange_s", "reward_s", "observation_s")
 
@@ -110,7 +110,7 @@ def correlation(preset: str, seeds: list[int], every: int, cache: str, threads: 
     """Probe estimate against the mesh-based completion ratio (the run's protocol: culled meshes against
     the observable ground truth) for every agent every ``every`` steps of whole episodes."""
     from mapping.evaluate import evaluate_mesh, merge_instance_meshes  # noqa: PLC0415
-    from openmulti_env.world.visibility import cull_to_viewpoints  # noqa: PLC0415
+    from mapping.evaluate.visibility import cull_to_viewpoints  # noqa: PLC0415
 
     e = parallel_env(preset=preset, cache_dir=cache, threads=threads)
     rng = np.random.default_rng(2)
@@ -166,7 +166,7 @@ def plot_correlation(rows: list[dict], path: Path) -> None:
 def main() -> None:
     global OUT
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--presets", nargs="+", default=["tiny", "fast"])
+    parser.add_argument("--presets", nargs="+", default=["rl_tiny", "rl"])
     parser.add_argument("--episodes", type=int, default=3, help="episodes per preset for steps/s")
     parser.add_argument("--memory-episodes", type=int, default=20, help="tiny episodes for the memory check")
     parser.add_argument("--correlation-seeds", type=int, nargs="+", default=[0, 1])
@@ -194,7 +194,7 @@ def main() -> None:
         for p, r in result["resets"].items():
             print(f"| {p} | {r['cold_s']:.2f} | {r['warm_s']:.2f} | {r['same_env_s']:.2f} | {r['entry_mb']:.1f} |")
     if "memory" not in args.skip:
-        result["memory"] = memory("tiny", args.memory_episodes, cache, args.threads)
+        result["memory"] = memory("rl_tiny", args.memory_episodes, cache, args.threads)
         m = result["memory"]
         print(f"\nmemory (tiny, {len(m['rss_mb'])} episodes): RSS {m['rss_mb'][0]:.0f} -> {m['rss_mb'][-1]:.0f} MB, "
               f"second half growth {m['growth_second_half_mb']:+.1f} MB")

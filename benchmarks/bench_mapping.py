@@ -17,8 +17,8 @@ from pathlib import Path
 
 import torch
 
-from openmulti_env.results import write_json_atomic
-from openmulti_env.run import run
+from mapping.pipeline.records import write_json_atomic
+from openmulti_env.runs.run import run
 
 
 def main() -> None:

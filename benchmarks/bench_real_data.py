@@ -24,10 +24,10 @@ import torch
 from mapping.data import load_dataset
 from mapping.evaluate.reference import tsdf_reference_mesh
 from mapping.perception.geometric_segmenter import GeometricSegmenter
-from openmulti_env.data_run import run_data
-from openmulti_env.results import write_json_atomic
-from openmulti_env.run import run
-from openmulti_env.run_presets import world_config
+from openmulti_env.runs.run import run_data
+from mapping.pipeline.records import write_json_atomic
+from openmulti_env.runs.run import run
+from openmulti_env.presets import world_config
 from openmulti_env.world import World
 from openmulti_env.world.export import export_world
 from openmulti_env.world.sensor import RGBDSensor, SensorConfig

@@ -33,7 +33,7 @@ from mapping.evaluate.semantic import zero_shot_labels
 from mapping.perception import CodeBook, CodeBookEntry, TextEncoder
 from mapping.perception.captioner import TemplateCaptioner
 from mapping.perception.errors import SegmentationErrorConfig, plan_errors
-from openmulti_env.results import write_json_atomic
+from mapping.pipeline.records import write_json_atomic
 from openmulti_env.world import REPLICA_LIKE_PRESETS, make_scene
 from openmulti_env.world.furniture import CATEGORIES
 from openmulti_env.world.scene import STRUCTURE_CATEGORIES

@@ -22,9 +22,9 @@ from pathlib import Path
 
 import torch
 
-from openmulti_env.reproduce.runner import library_defaults
-from openmulti_env.results import write_json_atomic
-from openmulti_env.run import run
+from openmulti_env.runs.reproduce.runner import library_defaults
+from mapping.pipeline.records import write_json_atomic
+from openmulti_env.runs.run import run
 
 CONFIGS = {
     "always": {"policy": "always"},

@@ -71,12 +71,13 @@ class Preset:
                            sensor=SensorConfig(width=self.image_width, height=self.image_height),
                            culling_edge_m=self.culling_edge_m)
 
-    def team_config(self, mapping: MappingConfig | None = None, consistency: ConsistencyConfig | None = None,
+    def team_config(self, mapping: MappingConfig | None = None, consistency: dict | None = None,
                     **options) -> TeamConfig:
-        """The team settings; ``mapping`` replaces the preset's mapper settings, ``consistency`` is taken
-        with the preset's iterations and rays per pose, ``options`` set other ``TeamConfig`` fields."""
-        consistency = replace(consistency or ConsistencyConfig(), iterations=self.consistency_iterations,
-                              rays_per_pose=self.rays_per_pose)
+        """The team settings; ``mapping`` replaces the preset's mapper settings, ``consistency`` holds
+        ``ConsistencyConfig`` fields (the preset's iterations and rays per pose unless given), ``options``
+        set other ``TeamConfig`` fields."""
+        consistency = ConsistencyConfig(**{"iterations": self.consistency_iterations,
+                                           "rays_per_pose": self.rays_per_pose, **(consistency or {})})
         return TeamConfig(mapping=mapping or self.mapping, frames_per_round=self.frames_per_round,
                           consistency=consistency, **options)
 
@@ -114,3 +115,18 @@ def get_preset(name: str) -> Preset:
     if name not in PRESETS:
         raise ValueError(f"unknown preset {name!r}; choose one of {PRESET_NAMES}")
     return PRESETS[name]
+
+
+def world_config(preset: str, num_agents: int) -> WorldConfig:
+    """``get_preset(preset).world_config(num_agents)``."""
+    return get_preset(preset).world_config(num_agents)
+
+
+def mapping_config(preset: str) -> MappingConfig:
+    """The preset's mapper settings."""
+    return get_preset(preset).mapping
+
+
+def team_config(preset: str, **options) -> TeamConfig:
+    """``get_preset(preset).team_config(**options)``."""
+    return get_preset(preset).team_config(**options)

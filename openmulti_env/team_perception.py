@@ -60,15 +60,3 @@ def perceive_team(world: World, seed: int, config: FrontEndConfig | None = None,
         frames[name], segmentations[name] = agent_frames, agent_segs
         fused[name] = fuse_frames(agent_frames, agent_segs, config.fusion)
     return TeamPerception(frames, segmentations, fused)
-
-
-def category_vocabulary(world: World) -> list[str]:
-    """The scene's category names (what zero-shot labelling chooses from), sorted."""
-    return sorted({inst.category for inst in world.scene.instances})
-
-
-def semantic_ground_truth(world: World, n_points: int = 200_000, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
-    """(n, 3) points on the observable ground-truth surface and their (n,) category names."""
-    points, _, ids = world.surface.sample_points(n_points, seed=seed)
-    category = {inst.instance_id: inst.category for inst in world.scene.instances}
-    return points, np.array([category[int(i)] for i in ids])

@@ -1,6 +1,6 @@
 import json
 
-from openmulti_env.cli import main
+from openmulti_env.runs.cli import main
 
 
 def test_scenes_lists_presets(capsys):
@@ -23,7 +23,7 @@ def test_scenes_json_describes_instances_and_coverage(capsys, tmp_path):
 
 def test_cli_constants_agree_with_the_modules_they_stand_for():
     from openmulti_env import cli
-    from openmulti_env.run_presets import RUN_PRESETS
+    from openmulti_env.presets import PRESET_NAMES as RUN_PRESETS
     from openmulti_env.world.world import MAX_AGENTS
 
     assert cli.RUN_PRESETS == RUN_PRESETS and cli.MAX_AGENTS == MAX_AGENTS
@@ -83,7 +83,7 @@ def test_team_run_writes_metrics_answers_queries_and_resumes(capsys, tmp_path):
 
 
 def test_every_scripted_policy_runs_rounds_on_the_tiny_world(tmp_path):
-    from openmulti_env.run import run
+    from openmulti_env.runs.run import run
 
     sent = {}
     for policy in ("never", "round_robin", "bernoulli:0.5", "budget"):

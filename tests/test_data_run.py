@@ -13,9 +13,10 @@ import numpy as np
 import pytest
 
 from mapping.data import DatasetError, DatasetWarning
-from openmulti_env.cli import main
-from openmulti_env.data_run import forget_stale_checkpoints, run_data
-from openmulti_env.data_inputs import check_sequence, load_agents, load_gt_mesh, parse_frames, parse_intrinsics
+from openmulti_env.runs.cli import main
+from mapping.pipeline.records import forget_stale_checkpoints
+from openmulti_env.runs.run import run_data
+from mapping.data.source import check_sequence, load_agents, load_gt_mesh, parse_frames, parse_intrinsics
 
 FIXTURES = Path(__file__).parent / "fixtures"
 REPLICA, SCANNET, NICE_SLAM = FIXTURES / "replica_tiny", FIXTURES / "scene0000_00", FIXTURES / "nice_slam_tiny"
@@ -71,7 +72,7 @@ def test_replica_team_always_writes_the_run_contract_and_answers_queries(tmp_pat
 
 
 def test_bernoulli_team_run_interrupted_after_a_round_resumes(tmp_path, capsys, monkeypatch):
-    import openmulti_env.data_run as data_run
+    import mapping.pipeline.run_team as pipeline
 
     out, mesh = tmp_path / "lossy", str(REPLICA / "mesh.ply")
 
@@ -79,7 +80,7 @@ def test_bernoulli_team_run_interrupted_after_a_round_resumes(tmp_path, capsys, 
         raise KeyboardInterrupt
 
     with monkeypatch.context() as m:  # the run stops after round 1 was checkpointed, before evaluating
-        m.setattr(data_run, "evaluate_team", interrupted)
+        m.setattr(pipeline, "evaluate_team", interrupted)
         with pytest.raises(KeyboardInterrupt):
             run_data(REPLICA, 2, "bernoulli:0.5", "tiny", 0, out, gt_mesh=mesh, device="cpu", progress=False,
                      max_rounds=1)

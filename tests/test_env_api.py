@@ -1,5 +1,5 @@
 """PettingZoo's own checks on the env, over a list of configurations (agents 2-6, both rewards, with and
-without a budget, presets tiny and fast), plus pickling and the registry."""
+without a budget, presets rl_tiny and rl), plus pickling and the registry."""
 
 from __future__ import annotations
 
@@ -17,13 +17,13 @@ import openmulti_env
 from openmulti_env import env, parallel_env, raw_env
 
 CONFIGS = [
-    dict(preset="tiny", num_agents=2),
-    dict(preset="tiny", num_agents=3, reward="individual"),
-    dict(preset="tiny", num_agents=4, comm_budget_mb=0.05),
-    dict(preset="tiny", num_agents=6, reward="individual", comm_budget_mb=0.02, comm_cost_per_mb=0.1),
-    dict(preset="fast", num_agents=4, max_cycles=2),
+    dict(preset="rl_tiny", num_agents=2),
+    dict(preset="rl_tiny", num_agents=3, reward="individual"),
+    dict(preset="rl_tiny", num_agents=4, comm_budget_mb=0.05),
+    dict(preset="rl_tiny", num_agents=6, reward="individual", comm_budget_mb=0.02, comm_cost_per_mb=0.1),
+    dict(preset="rl", num_agents=4, max_cycles=2),
 ]
-IDS = ["tiny-2", "tiny-3-individual", "tiny-4-budget", "tiny-6-individual-budget", "fast-4"]
+IDS = ["rl_tiny-2", "rl_tiny-3-individual", "rl_tiny-4-budget", "rl_tiny-6-individual-budget", "rl-4"]
 
 
 @pytest.fixture(params=CONFIGS, ids=IDS)
@@ -63,7 +63,7 @@ def test_max_cycles(config):
 
 
 def test_max_cycles_on_the_module_itself(tmp_path_factory):
-    """PettingZoo calls ``parallel_env(max_cycles=4)`` with the module's defaults (preset fast)."""
+    """PettingZoo calls ``parallel_env(max_cycles=4)`` with the module's defaults (preset rl)."""
     from openmulti_env import openmulti_v0
 
     cache = str(tmp_path_factory.getbasetemp() / "world-cache")
@@ -74,16 +74,16 @@ def test_max_cycles_on_the_module_itself(tmp_path_factory):
 
 @pytest.mark.parametrize("when", ["before reset", "after reset"])
 def test_pickles(when, tmp_path):
-    e = parallel_env(preset="tiny", cache_dir=str(tmp_path))
+    e = parallel_env(preset="rl_tiny", cache_dir=str(tmp_path))
     if when == "after reset":
         e.reset(seed=3)
         e.step({a: e.action_space(a).sample() for a in e.agents})
     copy = pickle.loads(pickle.dumps(e))
     obs, _ = copy.reset(seed=5)
-    again, _ = parallel_env(preset="tiny", cache_dir=str(tmp_path)).reset(seed=5)
+    again, _ = parallel_env(preset="rl_tiny", cache_dir=str(tmp_path)).reset(seed=5)
     for a in obs:
         np.testing.assert_array_equal(obs[a], again[a])
-    aec = pickle.loads(pickle.dumps(env(preset="tiny", cache_dir=str(tmp_path))))
+    aec = pickle.loads(pickle.dumps(env(preset="rl_tiny", cache_dir=str(tmp_path))))
     aec.reset(seed=1)
     assert aec.agent_selection == "agent_0"
 
@@ -93,11 +93,11 @@ def test_contract_names_and_registry(tmp_path):
 
     assert openmulti_env.openmulti_v0.parallel_env is parallel_env
     assert openmulti_env.openmulti_v0.raw_env is raw_env
-    e = pettingzoo.make("parallel", openmulti_env.ENV_ID, preset="tiny", cache_dir=str(tmp_path))
+    e = pettingzoo.make("parallel", openmulti_env.ENV_ID, preset="rl_tiny", cache_dir=str(tmp_path))
     assert e.metadata["name"] == "openmulti_v0" and "rgb_array" in e.metadata["render_modes"]
     assert e.metadata["render_fps"] > 0
     assert e.possible_agents == ["agent_0", "agent_1"]
     assert e.action_space("agent_1").shape == (2,)
-    aec = pettingzoo.make("aec", openmulti_env.ENV_ID, preset="tiny", cache_dir=str(tmp_path))
+    aec = pettingzoo.make("aec", openmulti_env.ENV_ID, preset="rl_tiny", cache_dir=str(tmp_path))
     aec.reset(seed=0)
     assert set(aec.agents) == {"agent_0", "agent_1"}

@@ -7,11 +7,11 @@ import numpy as np
 import pytest
 
 from openmulti_env import parallel_env
-from openmulti_env.actions import ActionError
-from openmulti_env.env_config import FIELD_NAMES
+from openmulti_env.environment.actions import ActionError
+from openmulti_env.environment.config import FIELD_NAMES
 from openmulti_env.environment import INFO_KEYS
-from openmulti_env.observation import OBSERVATION_CHANNELS
-from openmulti_env.world_cache import WorldCacheWarning, clear_world_cache, world_cache_dir
+from openmulti_env.environment.observation import OBSERVATION_CHANNELS
+from openmulti_env.world.cache import WorldCacheWarning, clear_world_cache, world_cache_dir
 
 
 @pytest.fixture(scope="module")
@@ -43,10 +43,10 @@ def _assert_same_episode(a_trace, b_trace):
 
 
 def test_same_seed_same_actions_same_episode_cold_and_warm(tmp_path):
-    cold = parallel_env(preset="tiny", cache_dir=str(tmp_path))
+    cold = parallel_env(preset="rl_tiny", cache_dir=str(tmp_path))
     first = _episode(cold, seed=11, action_seed=2)
     assert cold.last_cache_hit is False
-    warm = parallel_env(preset="tiny", cache_dir=str(tmp_path))
+    warm = parallel_env(preset="rl_tiny", cache_dir=str(tmp_path))
     second = _episode(warm, seed=11, action_seed=2)
     assert warm.last_cache_hit is True
     third = _episode(warm, seed=11, action_seed=2)  # the same env again: frames from its render cache
@@ -56,14 +56,14 @@ def test_same_seed_same_actions_same_episode_cold_and_warm(tmp_path):
 
 
 def test_another_episode_seed_gives_another_episode(cache):
-    e = parallel_env(preset="tiny", cache_dir=cache)
+    e = parallel_env(preset="rl_tiny", cache_dir=cache)
     a = _episode(e, seed=1, action_seed=0)
     b = _episode(e, seed=2, action_seed=0)
     assert any(a[k][1]["agent_0"] != b[k][1]["agent_0"] for k in range(1, len(a)))
 
 
 def test_bad_actions_name_the_agent_and_the_problem(cache):
-    e = parallel_env(preset="tiny", num_agents=3, cache_dir=cache)
+    e = parallel_env(preset="rl_tiny", num_agents=3, cache_dir=cache)
     with pytest.raises(RuntimeError, match="reset"):
         e.step({})
     e.reset(seed=0)
@@ -88,22 +88,22 @@ def test_bad_construction_is_refused_clearly(cache):
     with pytest.raises(ValueError, match="unknown preset 'huge'"):
         parallel_env(preset="huge")
     with pytest.raises(TypeError, match="unknown env option"):
-        parallel_env(preset="tiny", rays_per_objekt=3)
+        parallel_env(preset="rl_tiny", rays_per_objekt=3)
     with pytest.raises(ValueError, match="reward must be one of"):
-        parallel_env(preset="tiny", reward="selfish")
+        parallel_env(preset="rl_tiny", reward="selfish")
     with pytest.raises(ValueError, match="num_agents must be between 2"):
-        parallel_env(preset="tiny", num_agents=1)
+        parallel_env(preset="rl_tiny", num_agents=1)
     with pytest.raises(ValueError, match="render_mode"):
-        parallel_env(preset="tiny", render_mode="ascii")
+        parallel_env(preset="rl_tiny", render_mode="ascii")
     with pytest.raises(ValueError, match="unknown scene"):
-        parallel_env(preset="tiny", scene="castle", cache_dir=cache).reset(seed=0)
+        parallel_env(preset="rl_tiny", scene="castle", cache_dir=cache).reset(seed=0)
     with pytest.raises(KeyError, match="unknown agent 'agent_7'"):
-        parallel_env(preset="tiny").observation_space("agent_7")
+        parallel_env(preset="rl_tiny").observation_space("agent_7")
     assert "rays_per_object" in FIELD_NAMES
 
 
 def test_infos_rewards_and_budget(cache):
-    e = parallel_env(preset="tiny", cache_dir=cache, comm_budget_mb=0.02, budget_penalty=0.5, reward="individual")
+    e = parallel_env(preset="rl_tiny", cache_dir=cache, comm_budget_mb=0.02, budget_penalty=0.5, reward="individual")
     obs, infos = e.reset(seed=4)
     assert all(tuple(i) == INFO_KEYS for i in infos.values())
     always = {a: np.ones(2, np.int8) for a in e.agents}
@@ -123,7 +123,7 @@ def test_infos_rewards_and_budget(cache):
 
 
 def test_team_reward_is_the_mean_gain_minus_shared_costs(cache):
-    e = parallel_env(preset="tiny", cache_dir=cache, comm_cost_per_mb=2.0)
+    e = parallel_env(preset="rl_tiny", cache_dir=cache, comm_cost_per_mb=2.0)
     e.reset(seed=5)
     _, rewards, _, _, infos = e.step({a: np.ones(2, np.int8) for a in e.agents})
     gain = np.mean([i["completion_gain"] for i in infos.values()]) / 100
@@ -134,7 +134,7 @@ def test_team_reward_is_the_mean_gain_minus_shared_costs(cache):
 
 
 def test_silence_sends_nothing_and_receives_nothing(cache):
-    e = parallel_env(preset="tiny", cache_dir=cache)
+    e = parallel_env(preset="rl_tiny", cache_dir=cache)
     e.reset(seed=6)
     silent = {a: np.zeros(2, np.int8) for a in e.agents}
     while e.agents:
@@ -149,7 +149,7 @@ def test_silence_sends_nothing_and_receives_nothing(cache):
 
 
 def test_talking_fills_the_received_and_peer_channels(cache):
-    e = parallel_env(preset="tiny", cache_dir=cache)
+    e = parallel_env(preset="rl_tiny", cache_dir=cache)
     e.reset(seed=6)
     for _ in range(4):
         obs, _, _, _, infos = e.step({a: np.ones(2, np.int8) for a in e.agents})
@@ -167,25 +167,25 @@ def test_talking_fills_the_received_and_peer_channels(cache):
 
 
 def test_render_shows_every_agent_and_the_team_panel(cache):
-    e = parallel_env(preset="tiny", num_agents=3, cache_dir=cache, render_mode="rgb_array")
+    e = parallel_env(preset="rl_tiny", num_agents=3, cache_dir=cache, render_mode="rgb_array")
     e.reset(seed=0)
     e.step({a: np.ones(4, np.int8) for a in e.agents})
     img = e.render()
     assert img.dtype == np.uint8 and img.ndim == 3 and img.shape[2] == 3
     assert img.shape[0] == 192 and img.shape[1] == 4 * 192 + 3 * 4
     assert (img[:, -192:] == (255, 225, 25)).all(-1).any()  # links used both ways this step are drawn
-    plain = parallel_env(preset="tiny", cache_dir=cache)
+    plain = parallel_env(preset="rl_tiny", cache_dir=cache)
     plain.reset(seed=0)
     assert plain.render("rgb_array").shape[2] == 3  # RLlib passes the mode
 
 
 def test_world_cache_corrupt_entry_is_rebuilt_with_a_warning(tmp_path):
-    e = parallel_env(preset="tiny", cache_dir=str(tmp_path))
+    e = parallel_env(preset="rl_tiny", cache_dir=str(tmp_path))
     e.reset(seed=0)
     entries = list(world_cache_dir(tmp_path).glob("*.npz"))
     assert len(entries) == 1
     entries[0].write_bytes(b"not an npz")
-    fresh = parallel_env(preset="tiny", cache_dir=str(tmp_path))
+    fresh = parallel_env(preset="rl_tiny", cache_dir=str(tmp_path))
     with pytest.warns(WorldCacheWarning, match="unreadable"):
         fresh.reset(seed=0)
     assert fresh.last_cache_hit is False
@@ -193,21 +193,21 @@ def test_world_cache_corrupt_entry_is_rebuilt_with_a_warning(tmp_path):
 
 
 def test_world_cache_key_changes_with_what_shapes_the_world(tmp_path):
-    from openmulti_env.env_config import env_config
-    from openmulti_env.world_cache import world_cache_key
+    from openmulti_env.environment.config import env_config
+    from openmulti_env.world.cache import world_cache_key
 
-    base = env_config("tiny")
+    base = env_config("rl_tiny")
     key = world_cache_key("tiny", 0, base.world_config())
-    assert key == world_cache_key("tiny", 0, env_config("tiny").world_config())
+    assert key == world_cache_key("tiny", 0, env_config("rl_tiny").world_config())
     assert key != world_cache_key("tiny", 1, base.world_config())
-    assert key != world_cache_key("tiny", 0, env_config("tiny", image_width=96).world_config())
+    assert key != world_cache_key("tiny", 0, env_config("rl_tiny", image_width=96).world_config())
     assert key != world_cache_key("room0", 0, base.world_config())
     # options that do not shape the world share its entry
-    assert key == world_cache_key("tiny", 0, env_config("tiny", rays_per_object=7).world_config())
+    assert key == world_cache_key("tiny", 0, env_config("rl_tiny", rays_per_object=7).world_config())
 
 
 def test_world_cache_is_trimmed_to_its_cap(tmp_path):
-    from openmulti_env.world_cache import trim_world_cache
+    from openmulti_env.world.cache import trim_world_cache
 
     import os
 
@@ -219,8 +219,8 @@ def test_world_cache_is_trimmed_to_its_cap(tmp_path):
 
 
 def test_agent_worker_threads_do_not_change_the_episode(cache):
-    one = _episode(parallel_env(preset="tiny", num_agents=3, cache_dir=cache, agent_workers=1), seed=8, action_seed=3)
-    two = _episode(parallel_env(preset="tiny", num_agents=3, cache_dir=cache, agent_workers=2), seed=8, action_seed=3)
+    one = _episode(parallel_env(preset="rl_tiny", num_agents=3, cache_dir=cache, agent_workers=1), seed=8, action_seed=3)
+    two = _episode(parallel_env(preset="rl_tiny", num_agents=3, cache_dir=cache, agent_workers=2), seed=8, action_seed=3)
     _assert_same_episode(one, two)
 
 
@@ -229,14 +229,14 @@ def test_world_cache_key_follows_a_manifests_meshes(tmp_path):
 
     import trimesh
 
-    from openmulti_env.env_config import env_config
-    from openmulti_env.world_cache import world_cache_key
+    from openmulti_env.environment.config import env_config
+    from openmulti_env.world.cache import world_cache_key
 
     trimesh.creation.box((0.5, 0.5, 0.5)).export(tmp_path / "box.obj")
     manifest = tmp_path / "room.json"
     manifest.write_text(json.dumps({"name": "r", "room": {"size_m": [3, 3, 2.5]},
                                     "objects": [{"mesh": "box.obj", "category": "box", "position_m": [1.5, 1.5]}]}))
-    config = env_config("tiny").world_config()
+    config = env_config("rl_tiny").world_config()
     before = world_cache_key(str(manifest), 0, config)
     assert before == world_cache_key(str(manifest), 0, config)
     trimesh.creation.box((0.6, 0.5, 0.5)).export(tmp_path / "box.obj")  # same manifest, another mesh

@@ -19,7 +19,7 @@ def test_supersuit_and_stable_baselines3_ppo_train_on_tiny(cache):
     sb3 = pytest.importorskip("stable_baselines3")
     from policies.sb3_vec import sb3_vec_env
 
-    vec = sb3_vec_env(parallel_env(preset="tiny", cache_dir=cache))
+    vec = sb3_vec_env(parallel_env(preset="rl_tiny", cache_dir=cache))
     assert vec.num_envs == 2  # one entry per agent
     model = sb3.PPO("CnnPolicy", vec, n_steps=16, batch_size=16, n_epochs=1, device="cpu", verbose=0)
     before = [p.detach().clone() for p in model.policy.parameters()]
@@ -36,7 +36,7 @@ def test_torchrl_wrapper_passes_check_env_specs(cache):
     from torchrl.envs.libs.pettingzoo import PettingZooWrapper
     from torchrl.envs.utils import check_env_specs
 
-    wrapped = PettingZooWrapper(parallel_env(preset="tiny", cache_dir=cache), seed=0)
+    wrapped = PettingZooWrapper(parallel_env(preset="rl_tiny", cache_dir=cache), seed=0)
     check_env_specs(wrapped)
     rollout = wrapped.rollout(3)
     assert rollout["agent", "observation"].shape[-3:] == (48, 48, 7)

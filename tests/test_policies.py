@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from openmulti_env.actions import ActionError, actions_to_plan, peers_of
+from openmulti_env.environment.actions import ActionError, actions_to_plan, peers_of
 from policies.scripted import PolicyError, ScriptedPolicy, parse_policy
 
 AGENTS = ["agent_0", "agent_1", "agent_2"]

@@ -12,11 +12,11 @@ import trimesh
 from mapping.data.frame import Intrinsics
 from mapping.evaluate.culling import cull_to_frustums
 from mapping.team.global_map import GLOBAL_ENCODING_SCALE
-from openmulti_env.reproduce.command import reproduce
-from openmulti_env.reproduce.methods import METHODS, TABLE_I_METHODS, get_method
-from openmulti_env.reproduce.runner import run_table
-from openmulti_env.reproduce.tables import RunSpec, table_runs
-from openmulti_env.reproduce.writers import markdown_table, mean_sd, write_table
+from openmulti_env.runs.reproduce.command import reproduce
+from openmulti_env.runs.reproduce.methods import METHODS, TABLE_I_METHODS, get_method
+from openmulti_env.runs.reproduce.runner import run_table
+from openmulti_env.runs.reproduce.tables import RunSpec, table_runs
+from openmulti_env.runs.reproduce.writers import markdown_table, mean_sd, write_table
 
 
 def test_design_method_names_are_all_presets():
@@ -74,7 +74,7 @@ def test_resume_skips_finished_runs_and_redoes_a_half_written_one(tmp_path):
 
 
 def test_a_row_made_under_other_library_defaults_is_redone(tmp_path, monkeypatch):
-    import openmulti_env.reproduce.runner as runner
+    import openmulti_env.runs.reproduce.runner as runner
 
     specs = table_runs("geometric", ["tiny"], [0])[:2]
     calls = []
@@ -153,7 +153,7 @@ def test_unknown_names_get_a_clear_error_listing_the_known_ones(tmp_path):
         get_method("vmap")
     with pytest.raises(ValueError, match="unknown scene 'kitchen9'.*room0.*office4"):
         reproduce("geometric", ["kitchen9"], [0], "tiny", tmp_path, run_fn=_fake_run([]))
-    from openmulti_env.cli import main
+    from openmulti_env.runs.cli import main
 
     assert main(["reproduce", "--table", "tables", "--out", str(tmp_path)]) == 2
 
@@ -193,8 +193,8 @@ def test_nice_slam_culling_keeps_faces_in_a_frustum_and_not_behind_the_observed_
 
 
 def test_free_space_culling_and_unculled_scoring_on_a_hand_made_box():
-    from openmulti_env.scoring import score_three_ways
-    from openmulti_env.world.visibility import cull_to_viewpoints
+    from mapping.pipeline.scoring import score_three_ways
+    from mapping.evaluate.visibility import cull_to_viewpoints
 
     gt = trimesh.creation.box(extents=(1.0, 1.0, 1.0))
     inner = trimesh.creation.box(extents=(0.5, 0.5, 0.5))  # hallucinated inside the box: no viewpoint sees it

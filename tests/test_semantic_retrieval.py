@@ -17,8 +17,8 @@ from mapping.evaluate.semantic import (
     zero_shot_labels,
 )
 from mapping.perception import CodeBook, CodeBookEntry, shared_text_encoder
-from openmulti_env.cli import main
-from openmulti_env.query import query_slug
+from openmulti_env.runs.cli import main
+from openmulti_env.runs.query import query_slug
 
 
 @pytest.fixture(scope="session")

@@ -14,7 +14,7 @@ import open3d as o3d
 from scipy.spatial import cKDTree
 
 from mapping.data import Intrinsics, backproject_depth
-from openmulti_env.world.raycast import MeshRaycaster
+from mapping.evaluate.raycast import MeshRaycaster
 
 COVERAGE_RADIUS_M = 0.05
 

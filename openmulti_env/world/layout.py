@@ -15,7 +15,7 @@ import trimesh
 
 from openmulti_env.world.collision import boxes_overlap, instances_penetrate
 from openmulti_env.world.furniture import FurnitureModel, build_furniture
-from openmulti_env.world.raycast import MeshRaycaster
+from mapping.evaluate.raycast import MeshRaycaster
 from openmulti_env.world.scene import Instance, Scene, build_structure
 
 FLOOR_GAP_M = 0.06  # free gap kept between footprints of floor objects

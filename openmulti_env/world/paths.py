@@ -23,8 +23,9 @@ from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation, Slerp
 
 from mapping.data import Intrinsics
-from openmulti_env.world.raycast import MeshRaycaster
-from openmulti_env.world.visibility import ObservableSurface, visibility_matrix
+from mapping.evaluate.raycast import MeshRaycaster
+from mapping.evaluate.visibility import visibility_matrix
+from openmulti_env.world.visibility import ObservableSurface
 
 
 @dataclass

@@ -12,22 +12,11 @@ import numpy as np  # noqa: E402
 from matplotlib.collections import PolyCollection  # noqa: E402
 
 from mapping.data import Frame  # noqa: E402
+from mapping.pipeline.plots import save_figure  # noqa: E402
 from openmulti_env.world.coverage import covered_mask, observed_points  # noqa: E402
 from openmulti_env.world.scene import Scene  # noqa: E402
 
 AGENT_COLORS = plt.get_cmap("tab10").colors
-
-
-def _save_figure(fig, path: str | Path, title: str = "", dpi: int = 100) -> Path:
-    """Title, tighten, write the PNG (creating its folder) and free the figure."""
-    if title:
-        fig.suptitle(title)
-    fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=dpi)
-    plt.close(fig)
-    return path
 
 
 def draw_top_down(ax, scene: Scene) -> None:
@@ -86,7 +75,7 @@ def save_world_overview(path: str | Path, scene: Scene, agent_poses: list[np.nda
     axes[1].set_xlim(-0.1, sx + 0.1)
     axes[1].set_ylim(-0.1, sy + 0.1)
     axes[1].set_title("coverage: agent colour = seen by that agent only, grey = 2+, red = nobody")
-    return _save_figure(fig, path, dpi=110)
+    return save_figure(fig, path, dpi=110)
 
 
 def save_frames(path: str | Path, frames: list[Frame], title: str = "") -> Path:
@@ -104,86 +93,4 @@ def save_frames(path: str | Path, frames: list[Frame], title: str = "") -> Path:
     axes[0][0].set_title("RGB")
     axes[0][1].set_title("depth [m]")
     axes[0][2].set_title("instance id")
-    return _save_figure(fig, path, title)
-
-
-def save_reconstruction_views(path: str | Path, gt_mesh, agent_meshes: list) -> Path:
-    """Ground truth beside each agent's reconstruction, seen from above (vertices coloured by height)."""
-    n = 1 + len(agent_meshes)
-    fig, axes = plt.subplots(1, n, figsize=(4.2 * n, 4.2), squeeze=False)
-    lo, hi = gt_mesh.bounds
-    for ax, (title, mesh) in zip(axes[0], [("ground truth (observable)", gt_mesh)]
-                                 + [(f"agent_{a}", m) for a, m in enumerate(agent_meshes)]):
-        if mesh is not None and len(mesh.vertices):
-            v = np.asarray(mesh.vertices)
-            v = v[v[:, 2] < hi[2] - 0.15]  # leave the ceiling out
-            order = np.argsort(v[:, 2])
-            ax.scatter(v[order, 0], v[order, 1], c=v[order, 2], s=0.2, cmap="viridis", vmin=lo[2], vmax=hi[2])
-        ax.set_title(title)
-        ax.set_xlim(lo[0] - 0.1, hi[0] + 0.1)
-        ax.set_ylim(lo[1] - 0.1, hi[1] + 0.1)
-        ax.set_aspect("equal")
-        ax.set_xticks([])
-        ax.set_yticks([])
-    return _save_figure(fig, path)
-
-
-def save_view_comparison(path: str | Path, views: list, stride: int, title: str = "") -> Path:
-    """Rows of (sensor RGB, map colour, sensor depth, map depth); ``views`` holds (Frame, colour (h, w, 3),
-    depth (h, w)) with the map rendered at every ``stride``-th pixel."""
-    fig, axes = plt.subplots(len(views), 4, figsize=(12, 2.6 * len(views)), squeeze=False)
-    for row, (frame, colour, depth) in zip(axes, views):
-        vmax = float(frame.depth.max()) or 1.0
-        row[0].imshow(frame.rgb)
-        row[1].imshow(np.clip(colour, 0, 1), interpolation="nearest")
-        row[2].imshow(frame.depth[::stride, ::stride], cmap="viridis", vmin=0, vmax=vmax, interpolation="nearest")
-        row[3].imshow(depth, cmap="viridis", vmin=0, vmax=vmax, interpolation="nearest")
-        row[0].set_ylabel(f"frame {frame.index}")
-        for ax in row:
-            ax.set_xticks([])
-            ax.set_yticks([])
-    for ax, name in zip(axes[0], ("sensor RGB", "map colour", "sensor depth", "map depth")):
-        ax.set_title(name)
-    return _save_figure(fig, path, title)
-
-
-def save_semantic_classes(path: str | Path, metrics, title: str, top: int = 20) -> Path:
-    """Bar chart of per-class IoU and accuracy (the ``top`` most frequent classes), F-mIoU in the title.
-
-    ``metrics`` is a ``mapping.evaluate.semantic.SemanticMetrics``.
-    """
-    rows = metrics.per_class[:top]
-    fig, ax = plt.subplots(figsize=(max(6.0, 0.45 * len(rows) + 2), 4))
-    x = np.arange(len(rows))
-    ax.bar(x - 0.2, [100 * r.iou for r in rows], 0.4, label="IoU")
-    ax.bar(x + 0.2, [100 * r.acc for r in rows], 0.4, label="accuracy")
-    ax.set_xticks(x, [f"{r.class_name}\n{100 * r.frequency:.0f}%" for r in rows], rotation=60, fontsize=7)
-    ax.set_ylabel("%")
-    ax.set_ylim(0, 100)
-    ax.legend(loc="upper right")
-    return _save_figure(fig, path, f"{title}\nF-mIoU {metrics.f_miou:.1f}, F-mAcc {metrics.f_macc:.1f} "
-                                   "(class: share of ground-truth points)")
-
-
-def save_round_bytes(path: str | Path, reports: list[dict], title: str = "") -> Path:
-    """Bytes each agent sent per round (stacked), and each agent's own compute seconds per round."""
-    fig, (ax_bytes, ax_time) = plt.subplots(1, 2, figsize=(11, 3.8))
-    if reports:
-        rounds = np.arange(len(reports))
-        sent = np.array([r["bytes_sent"] for r in reports], np.float64) / 1e6  # (T, N)
-        bottom = np.zeros(len(reports))
-        for a in range(sent.shape[1]):
-            ax_bytes.bar(rounds, sent[:, a], bottom=bottom, label=f"agent_{a}")
-            bottom += sent[:, a]
-        compute = np.array([r["compute_s"] for r in reports], np.float64)
-        for a in range(compute.shape[1]):
-            ax_time.plot(rounds, compute[:, a], label=f"agent_{a}")
-        ax_time.plot(rounds, [r["fleet_s"] for r in reports], "k--", label="fleet")
-        ax_bytes.legend(fontsize=7)
-        ax_time.legend(fontsize=7)
-    ax_bytes.set_xlabel("round")
-    ax_bytes.set_ylabel("MB sent")
-    ax_time.set_xlabel("round")
-    ax_time.set_ylabel("compute s")
-    fig.tight_layout()
-    return _save_figure(fig, path, title)
+    return save_figure(fig, path, title)

@@ -69,3 +69,15 @@ def instance_anchor_points(scene: Scene, count: int = 2000, seed: int = 0) -> di
     ``mapping.perception.OracleSegmenter`` independently of the order frames are seen in."""
     return {inst.instance_id: np.asarray(trimesh.sample.sample_surface(inst.mesh, count, seed=seed)[0], np.float64)
             for inst in scene.instances if len(inst.mesh.faces)}
+
+
+def category_vocabulary(world) -> list[str]:
+    """``world``'s category names (what zero-shot labelling chooses from), sorted."""
+    return sorted({inst.category for inst in world.scene.instances})
+
+
+def semantic_ground_truth(world, n_points: int = 200_000, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """(n, 3) points on ``world``'s observable ground-truth surface and their (n,) category names."""
+    points, _, ids = world.surface.sample_points(n_points, seed=seed)
+    category = {inst.instance_id: inst.category for inst in world.scene.instances}
+    return points, np.array([category[int(i)] for i in ids])

@@ -14,7 +14,7 @@ from mapping.data import AgentSequence, Frame, Intrinsics
 from openmulti_env.world.coverage import CoverageReport, coverage_report
 from openmulti_env.world.paths import PathConfig, plan_agent_paths
 from openmulti_env.world.presets import make_scene
-from openmulti_env.world.raycast import MeshRaycaster
+from mapping.evaluate.raycast import MeshRaycaster
 from openmulti_env.world.scene import Scene
 from openmulti_env.world.sensor import RGBDSensor, SensorConfig
 from openmulti_env.world.visibility import FreeSpaceConfig, ObservableSurface, compute_observable_surface, free_space_viewpoints

@@ -10,9 +10,9 @@ import platform
 import time
 from pathlib import Path
 
-from openmulti_env.reproduce.runner import check_scenes, run_table
-from openmulti_env.reproduce.tables import TABLES, table_runs
-from openmulti_env.reproduce.writers import write_table
+from openmulti_env.runs.reproduce.runner import check_scenes, run_table
+from openmulti_env.runs.reproduce.tables import TABLES, table_runs
+from openmulti_env.runs.reproduce.writers import write_table
 
 
 def reproduce(table: str, scenes: list[str], seeds: list[int], preset: str, out: str | Path, agents: int = 4,

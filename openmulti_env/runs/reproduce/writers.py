@@ -3,7 +3,7 @@ beside the paper's figures) and ``DIR/T.png``.
 
 Rows are grouped by method (and link success rate, and number of agents); a cell is "mean +- sd" over
 the group's runs (scenes x seeds; sd is the sample standard deviation, omitted for a single run).
-Geometric tables give each of the three cullings (``openmulti_env.scoring``).
+Geometric tables give each of the three cullings (``mapping.pipeline.scoring``).
 """
 
 from __future__ import annotations
@@ -11,8 +11,8 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
-from openmulti_env.reproduce.tables import PAPER
-from openmulti_env.results import write_json_atomic
+from openmulti_env.runs.reproduce.tables import PAPER
+from mapping.pipeline.records import write_json_atomic
 
 CULLING_COLUMNS = (("free space", ""), ("NICE-SLAM", "_nice"), ("unculled", "_unculled"))
 COLUMNS = {  # table -> (header, row key, scale) after method / n

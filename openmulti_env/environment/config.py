@@ -11,7 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass, fields, replace
 
 from mapping.runtime import available_cores
-from mapping.team import ChannelConfig, ConsistencyConfig, ExchangeConfig, TeamConfig
+from mapping.team import ChannelConfig, ExchangeConfig, TeamConfig
 from mapping.team.consistency import CONSISTENCY_ALGORITHMS
 from openmulti_env.presets import PRESET_NAMES, Preset, get_preset
 from openmulti_env.world.world import MAX_AGENTS, WorldConfig
@@ -141,7 +141,7 @@ class EnvConfig:
     def team_config(self) -> TeamConfig:
         return self._preset_with_overrides().team_config(
             alignment=self.alignment,
-            consistency=ConsistencyConfig(algorithm=self.consistency, cross_rendering=self.cross_rendering),
+            consistency={"algorithm": self.consistency, "cross_rendering": self.cross_rendering},
             exchange=ExchangeConfig(float16=self.float16, changed_only=self.changed_only))
 
     def workers(self) -> int:

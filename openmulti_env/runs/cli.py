@@ -17,7 +17,7 @@ from mapping.perception.image_encoder import ImageEncoderError
 from mapping.perception.text_encoder import TextEncoderError
 from policies.scripted import parse_policy
 
-RUN_PRESETS = ("full", "fast", "demo", "tiny")  # openmulti_env.run_presets checks it is the same
+RUN_PRESETS = ("tiny", "demo", "fast", "full", "rl_tiny", "rl")  # openmulti_env.presets.PRESET_NAMES (a test checks)
 MAX_AGENTS = 8  # openmulti_env.world.world.MAX_AGENTS (a test checks they agree)
 
 PENDING = {
@@ -44,7 +44,7 @@ def _agents(value: str) -> int:
 
 def cmd_scenes(args: argparse.Namespace) -> int:
     """List presets, or describe one scene with its coverage (and optionally render pictures)."""
-    from openmulti_env.run_presets import world_config  # noqa: PLC0415
+    from openmulti_env.presets import world_config  # noqa: PLC0415
     from openmulti_env.world import World, list_presets  # noqa: PLC0415
     from openmulti_env.world.presets import PRESETS  # noqa: PLC0415
 
@@ -89,64 +89,35 @@ def cmd_scenes(args: argparse.Namespace) -> int:
 def cmd_run(args: argparse.Namespace) -> int:
     """The main job: the team maps the scene (or ``--data``) round by round under the policy; prints a
     results table."""
+    from mapping.pipeline.summary import results_table  # noqa: PLC0415
+    from mapping.pipeline.run_team import RunResult  # noqa: PLC0415
+    from openmulti_env.runs.run import run, run_data  # noqa: PLC0415
+
     policy = check_policy(args.policy)
-    if args.data is not None:
-        return _run_data(args, policy, Path(args.out))
-    from openmulti_env.run import run  # noqa: PLC0415
-
     out = Path(args.out)
-    print(f"[openmulti] scene {args.scene}, {args.agents} agents, preset {args.preset}, seed {args.seed}, "
+    team_options = dict(device=args.device, alignment=args.alignment, clip_checkpoint=args.clip_checkpoint,
+                        comm_budget_mb=args.comm_budget_mb, consistency=args.consistency,
+                        cross_rendering=args.cross_rendering, float16=args.float16, changed_only=args.changed_only,
+                        threads=args.threads, workers=args.workers)
+    what = f"scene {args.scene}" if args.data is None else f"data {args.data}"
+    print(f"[openmulti] {what}, {args.agents} agents, preset {args.preset}, seed {args.seed}, "
           f"policy {policy}, alignment {args.alignment}, consistency {args.consistency}"
           f"{'' if args.cross_rendering else ', no cross rendering'}")
-    result = run(args.scene, args.agents, policy, args.preset, args.seed, out, device=args.device,
-                 alignment=args.alignment, segmentation_errors=not args.perfect_masks,
-                 clip_checkpoint=args.clip_checkpoint, comm_budget_mb=args.comm_budget_mb,
-                 consistency=args.consistency, cross_rendering=args.cross_rendering, float16=args.float16,
-                 changed_only=args.changed_only, threads=args.threads, workers=args.workers)
+    if args.data is None:
+        metrics = run(args.scene, args.agents, policy, args.preset, args.seed, out,
+                      segmentation_errors=not args.perfect_masks, **team_options)
+    else:
+        if args.perfect_masks:
+            raise ValueError("--perfect-masks is for --scene (the simulator's error model); with --data the masks "
+                             "are the data set's instance images or the geometric segmenter's")
+        metrics = run_data(args.data, args.agents, policy, args.preset, args.seed, out, kind=args.kind,
+                           gt_mesh=args.gt_mesh, frames=args.frames, intrinsics=args.intrinsics,
+                           depth_scale=args.depth_scale, **team_options)
+    fields = set(RunResult.__dataclass_fields__) - {"extra"}
+    result = RunResult(**{k: v for k, v in metrics.items() if k in fields},
+                       extra={k: v for k, v in metrics.items() if k not in fields})
     print()
-    print(f"{'agent':<10} {'acc [cm]':>9} {'comp [cm]':>10} {'comp ratio [%]':>15} {'F-mIoU':>7} {'F-mAcc':>7} "
-          f"{'instances':>10} {'compute [s]':>12}")
-    for name, m in result["agents"].items():
-        print(f"{name:<10} {_fmt(m['acc_cm']):>9} {_fmt(m['comp_cm']):>10} {_fmt(m['comp_ratio']):>15} "
-              f"{_fmt(m['f_miou']):>7} {_fmt(m['f_macc']):>7} {m['instances']:>10} "
-              f"{result['compute_s'][name]:>12.1f}")
-    mean, team = result["mean"], result["team"]
-    print(f"{'mean':<10} {_fmt(mean['acc_cm']):>9} {_fmt(mean['comp_cm']):>10} {_fmt(mean['comp_ratio']):>15} "
-          f"{_fmt(mean['f_miou']):>7} {_fmt(mean['f_macc']):>7}")
-    print(f"{'all maps':<10} {'':>9} {'':>10} {'':>15} {_fmt(team['f_miou']):>7} {_fmt(team['f_macc']):>7}")
-    _print_team_footer(result, out)
-    return 0
-
-
-def _print_team_footer(result: dict, out: Path) -> None:
-    """Rounds, bytes, messages and fleet time of a team run, and what it wrote."""
-    msgs = result["messages"]
-    print(f"\n{result['rounds']} rounds; {result['bytes_sent_total'] / 1e6:.2f} MB sent "
-          f"({result['bytes_per_round_per_agent_mean'] / 1e6:.2f} MB per round per agent); messages delivered "
-          f"{msgs['delivered']}, dropped {msgs['dropped']}, over budget {msgs['over_budget']}; "
-          f"fleet time {result['fleet_s']:.1f} s")
-    print(f"Wrote {out}/metrics.json, {out}/rounds.json, {out}/meshes/, {out}/codebook/, {out}/plots/ in "
-          f"{result['wall_s']:.1f} s; try: openmulti query --run {out} \"somewhere to sit\"")
-
-
-def _run_data(args: argparse.Namespace, policy: str, out: Path) -> int:
-    from openmulti_env.data_run import run_data, summary_lines  # noqa: PLC0415
-
-    if args.perfect_masks:
-        raise ValueError("--perfect-masks is for --scene (the simulator's error model); with --data the masks are "
-                         "the data set's instance images or the geometric segmenter's")
-    print(f"[openmulti] data {args.data}, {args.agents} agents, preset {args.preset}, seed {args.seed}, "
-          f"policy {policy}, alignment {args.alignment}, consistency {args.consistency}"
-          f"{'' if args.cross_rendering else ', no cross rendering'}")
-    result = run_data(args.data, args.agents, policy, args.preset, args.seed, out, kind=args.kind,
-                      gt_mesh=args.gt_mesh, frames=args.frames, intrinsics=args.intrinsics,
-                      depth_scale=args.depth_scale, device=args.device, alignment=args.alignment,
-                      clip_checkpoint=args.clip_checkpoint, comm_budget_mb=args.comm_budget_mb,
-                      consistency=args.consistency, cross_rendering=args.cross_rendering, float16=args.float16,
-                      changed_only=args.changed_only, threads=args.threads)
-    print()
-    print("\n".join(summary_lines(result)))
-    _print_team_footer(result, out)
+    print("\n".join(results_table(result, out)))
     return 0
 
 
@@ -155,7 +126,7 @@ def cmd_query(args: argparse.Namespace) -> int:
 
     The code books are encoded once for all queries; ``--plot`` also writes DIR/plots/query_<slug>.png.
     """
-    from openmulti_env.query import RunMap, _image_encoder, run_query  # noqa: PLC0415
+    from openmulti_env.runs.query import RunMap, image_encoder_or_none, run_query  # noqa: PLC0415
 
     texts = [args.text] if args.text is not None else []
     if args.queries:
@@ -163,7 +134,7 @@ def cmd_query(args: argparse.Namespace) -> int:
                   if line.strip() and not line.lstrip().startswith("#")]
     if not texts:
         raise ValueError('give a query text or --queries FILE, e.g. openmulti query --run DIR "somewhere to sleep"')
-    run_map = RunMap(args.run, args.text_encoder, _image_encoder(args.clip_checkpoint))
+    run_map = RunMap(args.run, args.text_encoder, image_encoder_or_none(args.clip_checkpoint))
     payloads = [run_query(args.run, t, top_k=args.top, plot=args.plot, run_map=run_map).payload for t in texts]
     print(json.dumps(payloads[0] if args.queries is None else payloads, indent=2))
     return 0
@@ -171,7 +142,7 @@ def cmd_query(args: argparse.Namespace) -> int:
 
 def cmd_reproduce(args: argparse.Namespace) -> int:
     """Run the runs of one of the paper's tables (or all) and write DIR/T.json, DIR/T.md, DIR/T.png."""
-    from openmulti_env.reproduce.command import reproduce  # noqa: PLC0415
+    from openmulti_env.runs.reproduce.command import reproduce  # noqa: PLC0415
 
     written = reproduce(args.table, args.scenes, args.seeds, args.preset, args.out, agents=args.agents,
                         threads=args.threads, device=args.device, three_cullings=not args.free_space_only,
@@ -186,7 +157,7 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
 
 def cmd_cache(args: argparse.Namespace) -> int:
     """Report (or clear) the env's cache of world geometry."""
-    from openmulti_env.world_cache import clear_world_cache, world_cache_dir  # noqa: PLC0415
+    from openmulti_env.world.cache import clear_world_cache, world_cache_dir  # noqa: PLC0415
 
     folder = world_cache_dir(args.dir)
     if args.clear:
@@ -197,10 +168,6 @@ def cmd_cache(args: argparse.Namespace) -> int:
     print(f"{folder}: {len(entries)} world(s), {sum(p.stat().st_size for p in entries) / 1e6:.1f} MB "
           "(openmulti cache --clear empties it)")
     return 0
-
-
-def _fmt(x) -> str:
-    return "-" if x is None else f"{x:.2f}"
 
 
 def build_parser() -> argparse.ArgumentParser:

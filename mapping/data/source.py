@@ -1,7 +1,7 @@
-"""What a real RGB-D data set gives a team run: frames per agent, masks per frame with caption features,
-the ground-truth (or reference) mesh, the semantic ground truth and the viewpoints of the culling.
-Nothing here fuses, maps or scores: in ``data_run`` the team (``mapping.team``) fuses each agent's
-frames online, maps and exchanges, and ``data_run`` scores it.
+"""A real RGB-D data set as a ``mapping.pipeline.Source`` (``DataSource``): frames per agent, masks per
+frame with caption features, the ground-truth (or reference) mesh, the semantic ground truth and the
+viewpoints of the culling. Nothing here fuses, maps or scores: the pipeline's team fuses each agent's
+frames online, maps and exchanges, and the pipeline scores it.
 
 Masks come from the data set when it has instance images (Replica ``semantic_instance/``, ScanNet
 ``instance-filt/``), captioned with the category names of its label file; otherwise from the
@@ -27,11 +27,13 @@ from mapping.data.labels import dataset_categories
 from mapping.evaluate.reference import TSDFConfig, TSDFReference
 from mapping.perception import FrameSegmentation, TextEncoder
 from mapping.perception.front_end import encode_segments
-from mapping.perception.geometric_segmenter import GeometricSegmenter
+from mapping.perception.geometric_segmenter import GeometricSegmenter, instance_caption
 from mapping.perception.image_encoder import ImageTextEncoder
 from mapping.perception.segmenter import DatasetMaskSegmenter
 from mapping.pointcloud import voxel_downsample
-from openmulti_env.world.visibility import cull_to_viewpoints
+from mapping.evaluate.visibility import cull_to_viewpoints
+from mapping.pipeline.source import CameraViews, GroundTruth, SourceRecord
+from mapping.team import Vocabulary
 
 VIEWPOINT_SPACING_M = 0.25
 """Camera centres closer than this are one viewpoint of the culling (the free-space grid is 0.5 m)."""
@@ -241,3 +243,68 @@ class _LabelledPoints:
                           "F-mIoU/F-mAcc are not scored", stacklevel=2)
             return None
         return np.asarray(samples)[near], np.array(self.names)[labels[nearest[near]]]
+
+
+PLANAR = "planar surface"
+"""With geometric masks, the vocabulary name whose instances get the structure networks."""
+STRUCTURE = ("wall", "floor", "ceiling")
+"""Data-set categories that get the structure networks."""
+
+
+class DataStream:
+    """One agent's frames of a data set as a ``mapping.team.AgentStream``: frame ``i`` (decoded from disk
+    when read) and its segmentation (masks with caption features, from ``prepare_inputs``)."""
+
+    def __init__(self, inputs: DataInputs, name: str):
+        self.name = name
+        self.frames, self.segmentations = inputs.frames[name], inputs.segmentations[name]
+
+    def __len__(self) -> int:
+        return len(self.frames)
+
+    def read(self, index: int) -> tuple[Frame, FrameSegmentation]:
+        if not 0 <= index < len(self):
+            raise IndexError(f"{self.name} has frames 0..{len(self) - 1}, not {index}")
+        return self.frames[index], self.segmentations[index]
+
+
+class DataSource:
+    """A data set's ``DataInputs`` as a ``mapping.pipeline.Source``."""
+
+    def __init__(self, inputs: DataInputs, text_encoder: TextEncoder, image_encoder: ImageTextEncoder | None = None):
+        self.inputs, self.text_encoder, self.image_encoder = inputs, text_encoder, image_encoder
+        self.name = inputs.name
+
+    def streams(self) -> list[DataStream]:
+        return [DataStream(self.inputs, name) for name in self.inputs.frames]
+
+    def vocabulary(self) -> Vocabulary:
+        """The data set's categories with walls, floors and ceilings as structure; with geometric masks
+        "planar surface" / "object", planar surfaces as structure (wider networks)."""
+        structure = STRUCTURE if self.inputs.masks == "dataset" else (PLANAR,)
+        return Vocabulary.from_encoder(self.inputs.vocabulary, self.text_encoder, structure)
+
+    def ground_truth(self, seed: int) -> GroundTruth:
+        given = self.inputs.ground_truth == "given"
+        return GroundTruth(self.inputs.gt_mesh, "gt_observable.ply" if given else "gt_reference.ply",
+                           self.inputs.viewpoints, self.inputs.vocabulary, self.inputs.semantic_gt,
+                           "Meshes are culled to what the cameras' positions (25 cm apart) can see, occlusion "
+                           "included;")
+
+    def sensor_views(self, agent: int) -> tuple[list[Frame], int]:
+        seq = list(self.inputs.frames.values())[agent]
+        return [seq[i] for i in sorted({len(seq) // 3, 2 * len(seq) // 3})], max(1, seq.intrinsics.width // 80)
+
+    def camera_views(self, stride: int) -> CameraViews | None:
+        return None
+
+    def record(self, settings: dict) -> SourceRecord:
+        """What the run records of this source beside ``settings``."""
+        inputs = self.inputs
+        caption = (lambda iid, text: instance_caption(text, iid)) if inputs.masks == "geometric" else None
+        return SourceRecord(
+            {**settings, "kind": inputs.kind, "scene": inputs.name,
+             "frames_per_agent": {a: len(s) for a, s in inputs.frames.items()}},
+            {"ground_truth": inputs.ground_truth, "masks": inputs.masks,
+             "timings_s": {k: round(v, 4) for k, v in inputs.timings_s.items()}},
+            list(inputs.notes), caption)

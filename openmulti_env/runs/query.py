@@ -159,7 +159,7 @@ def _load_meshes(run_dir: Path, points_per_mesh: int = PLOT_POINTS_PER_MESH) -> 
     return out
 
 
-def _image_encoder(checkpoint: str | None):
+def image_encoder_or_none(checkpoint: str | None):
     """The image-text encoder for ``checkpoint`` (None without one; the loader says so once)."""
     try:
         from mapping.perception.image_encoder import ImageEncoderError, load_image_encoder  # noqa: PLC0415
@@ -205,7 +205,7 @@ def run_query(run_dir: str | Path, text: str, top_k: int = 5, clip_checkpoint: s
         raise ValueError(f"--top must be at least 1, got {top_k}")
     run_dir = Path(run_dir)
     if run_map is None:
-        run_map = RunMap(run_dir, text_encoder, _image_encoder(clip_checkpoint))
+        run_map = RunMap(run_dir, text_encoder, image_encoder_or_none(clip_checkpoint))
     hits = run_map.rank(text)
     results = run_map.query(text, top_k)
     payload = {"query": text, "run": str(run_dir), "scene": _scene_name(run_dir), "results": results}

@@ -1,4 +1,4 @@
-"""Writing results so that a crash never leaves half a file."""
+"""Results and settings records on disk: written atomically (a crash never leaves half a file), plain JSON."""
 
 from __future__ import annotations
 
@@ -42,3 +42,18 @@ def forget_stale_checkpoints(out: Path, settings: dict) -> None:
         print(f"[openmulti] {out}: settings differ from the run that wrote its checkpoints; "
               f"deleted {len(stale)} checkpoint(s) and mapping again")
     write_json_atomic(path, settings)
+
+
+def as_record(value) -> dict:
+    """``value`` as it reads back from a JSON file (tuples as lists, inf as inf): what a settings record
+    on disk is compared with."""
+    return json.loads(json.dumps(plain(value)))
+
+
+def plain(value):
+    """Config dicts for JSON (tuples and frozensets as lists)."""
+    if isinstance(value, dict):
+        return {k: plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple, set, frozenset)):
+        return [plain(v) for v in value]
+    return value

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from openmulti_env.reproduce.methods import METHODS, TABLE_I_METHODS
+from openmulti_env.runs.reproduce.methods import METHODS, TABLE_I_METHODS
 
 TABLES = ("geometric", "multi-vs-single", "semantic", "ablation", "comm-failure", "transmission")
 """``all`` runs every one of them (runs shared between tables are made once)."""

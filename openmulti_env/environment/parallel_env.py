@@ -29,7 +29,7 @@ time also a down-sampled cloud) to peer k; entry N-1+k is 1 to share its ray dir
 pixel seed, never depth) with peer k.
 
 ### Observations
-A top-down map of the room (rows +y, columns +x), channels last (`openmulti_env.observation`):
+A top-down map of the room (rows +y, columns +x), channels last (`openmulti_env.environment.observation`):
 `map_height` (the agent's map's highest surface per cell where its fields reproduce the probed surface),
 `map_coverage` (share of the cell's probed surface its map reproduces), `observed` (cells its own depth
 has hit), `received` (footprints of the object instances held from peers), `own_path` (path 128,
@@ -68,7 +68,7 @@ small `tiny` room). `num_agents`: 2-8 (default: the preset's). `preset`: `tiny`,
 `seed`: the world's seed. `render_mode`: None or `rgb_array` (`human` is accepted and draws nothing:
 the env is headless). `comm_budget_mb`: megabytes each agent may send per episode. `reward`: `team` or
 `individual`. `max_cycles`: the horizon (alias of `horizon`). `overrides`: any `EnvConfig` field
-(`openmulti_env.env_config`), e.g. `success_probability=0.5`, `comm_cost_per_mb=0.01`,
+(`openmulti_env.environment.config`), e.g. `success_probability=0.5`, `comm_cost_per_mb=0.01`,
 `consistency="dinno"`, `map_size=96`, `threads=1`, `cache_dir=...`.
 
 ### Version History
@@ -90,14 +90,14 @@ from pettingzoo.utils import parallel_to_aec, wrappers
 from mapping.perception import shared_text_encoder
 from mapping.runtime import set_threads
 from mapping.team import Team
-from openmulti_env.actions import ActionError, actions_to_plan
-from openmulti_env.env_config import EnvConfig, env_config
-from openmulti_env.env_render import AGENT_COLOURS, agent_tile, compose, team_panel
-from openmulti_env.observation import (OBSERVATION_CHANNELS, AgentObservation, ProbeRaster, TopDownGrid, peer_plane,
+from openmulti_env.environment.actions import ActionError, actions_to_plan
+from openmulti_env.environment.config import EnvConfig, env_config
+from openmulti_env.environment.render import AGENT_COLOURS, agent_tile, compose, team_panel
+from openmulti_env.environment.observation import (OBSERVATION_CHANNELS, AgentObservation, ProbeRaster, TopDownGrid, peer_plane,
                                        received_plane)
-from openmulti_env.sim_team import world_streams, world_vocabulary
-from openmulti_env.world_cache import cached_world
-from openmulti_env.world_stream import RenderCache
+from openmulti_env.world.stream import world_streams, world_vocabulary
+from openmulti_env.world.cache import cached_world
+from openmulti_env.world.stream import RenderCache
 
 INFO_KEYS = ("completion_ratio", "completion_gain", "bytes_sent", "bytes_received", "bytes_sent_total",
              "budget_left_mb", "messages_delivered", "messages_dropped", "messages_refused", "instances",

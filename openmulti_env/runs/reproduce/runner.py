@@ -1,4 +1,4 @@
-"""Running a table: one ``openmulti_env.run.run`` per ``RunSpec``, keyed, atomic and resumable.
+"""Running a table: one ``openmulti_env.runs.run.run`` per ``RunSpec``, keyed, atomic and resumable.
 
 Each run lives in ``OUT/runs/<key>/`` (``run`` checkpoints its team there every few rounds and resumes
 from it) and, once finished, leaves its row in ``OUT/rows/<key>.json``, written atomically together
@@ -17,9 +17,9 @@ from typing import Callable
 
 from tqdm import tqdm
 
-from openmulti_env.reproduce.methods import METHODS
-from openmulti_env.reproduce.tables import RunSpec
-from openmulti_env.results import write_json_atomic
+from openmulti_env.runs.reproduce.methods import METHODS
+from openmulti_env.runs.reproduce.tables import RunSpec
+from mapping.pipeline.records import write_json_atomic
 
 ROW_KEYS = ("method", "scene", "seed", "agents", "success_rate", "acc_cm", "comp_cm", "comp_ratio",
             "bytes_per_round", "time_per_round_s")
@@ -50,8 +50,8 @@ def run_settings(spec: RunSpec, preset: str, three_cullings: bool, max_rounds: i
 def library_defaults(preset: str) -> dict:
     """The team settings a run takes from the library (JSON-plain), beside its method's options."""
     from mapping.team import ConsistencyConfig, ExchangeConfig  # noqa: PLC0415
-    from openmulti_env.run import as_record  # noqa: PLC0415
-    from openmulti_env.run_presets import mapping_config  # noqa: PLC0415
+    from openmulti_env.runs.run import as_record  # noqa: PLC0415
+    from openmulti_env.presets import mapping_config  # noqa: PLC0415
 
     return as_record({"consistency": asdict(ConsistencyConfig()), "exchange": asdict(ExchangeConfig()),
                       "mapping": asdict(mapping_config(preset))})
@@ -101,10 +101,10 @@ def run_table(specs: list[RunSpec], preset: str, out: Path, threads: int | None 
         keep_files: keep each finished run's team checkpoint and meshes (by default they are deleted
             once its row is written: a ``fast`` team checkpoint is ~0.3 GB, the meshes ~0.2 GB, and a
             table needs tens of runs; ``metrics.json`` and ``rounds.json`` stay).
-        run_fn: the run function (default ``openmulti_env.run.run``; tests pass a stand-in).
+        run_fn: the run function (default ``openmulti_env.runs.run.run``; tests pass a stand-in).
     """
     if run_fn is None:
-        from openmulti_env.run import run as run_fn  # noqa: PLC0415
+        from openmulti_env.runs.run import run as run_fn  # noqa: PLC0415
     check_scenes(sorted({s.scene for s in specs}))
     rows, todo = [], []
     for spec in specs:

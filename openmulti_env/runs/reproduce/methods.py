@@ -1,6 +1,6 @@
 """Every method of the paper's tables as a configuration of the same code.
 
-One frozen ``Method`` per name: the options of ``openmulti_env.run.run`` (policy, consistency
+One frozen ``Method`` per name: the options of ``openmulti_env.runs.run.run`` (policy, consistency
 algorithm, Cross Rendering, instance-level or global map, point-cloud sharing). All of them run the
 same agents, channel, front end and evaluation; only these options differ, so a difference in the
 tables is the method's. Every agent uses the simulator's ground-truth poses, so Di-NeRF*'s
@@ -16,7 +16,7 @@ from mapping.team.global_map import GLOBAL_ENCODING_SCALE
 
 @dataclass(frozen=True)
 class Method:
-    """A named preset of team options (keyword arguments of ``openmulti_env.run.run``)."""
+    """A named preset of team options (keyword arguments of ``openmulti_env.runs.run.run``)."""
 
     name: str
     paper: str

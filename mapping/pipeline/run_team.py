@@ -1,0 +1,212 @@
+"""The one run pipeline: ``run_team(source, config, schedule) -> RunResult``.
+
+    Source (frame streams, vocabulary)  ->  Team rounds under the schedule (checkpointed, resumable)
+        ->  every agent's own map meshed and scored against the source's ground truth  ->  outputs
+
+``openmulti run --scene`` (the simulator's source), ``openmulti run --data`` (a data set's),
+``openmulti reproduce`` and the benchmarks all run through it. Outputs in ``out``: ``metrics.json``
+(``RunResult.as_json``: the DESIGN.md contract and more), ``rounds.json`` (one ``RoundReport`` per
+round), ``meshes/``, ``codebook/``, ``plots/`` and the team's checkpoint every few rounds (the same call
+on the same folder resumes after the last saved round; other settings start again).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+from tqdm import tqdm
+
+from mapping.checkpoint import CheckpointError
+from mapping.pipeline.records import as_record, forget_stale_checkpoints, plain, write_json_atomic
+from mapping.pipeline.scoring import mean_metrics, score_member, team_semantics
+from mapping.pipeline.source import GroundTruth, Source, SourceRecord
+from mapping.runtime import set_threads
+from mapping.team import AgentSnapshot, ChannelConfig, RoundPlan, Team, TeamConfig
+
+Schedule = Callable[[int, list[AgentSnapshot]], RoundPlan]
+"""Who sends what to whom in round ``t``, from what each agent knows (``Team.snapshots``)."""
+
+METRICS_NOTE = ("Per-agent metrics: each agent's own map against the whole ground truth; mean = their average "
+                "(as the paper). {culling} acc_cm_unculled scores the whole reconstruction (and *_nice "
+                "NICE-SLAM-culled, when asked). bytes_* count the serialised parameter and ray messages (and the "
+                "clouds inside them). fleet_s: per round, the slowest agent's local phase + the exchange + the "
+                "slowest consistency phase, summed.")
+
+
+@dataclass
+class RunConfig:
+    """How a run goes, beyond what its source and team settings say."""
+
+    out: Path
+    """Folder of the outputs and checkpoints."""
+    team: TeamConfig
+    channel: ChannelConfig = field(default_factory=ChannelConfig)
+    seed: int = 0
+    """Drives network initialisation, ray sampling and channel draws (and the scoring's samples)."""
+    device: str = "auto"
+    workers: int = 1
+    """Agents trained side by side on threads (``Team(workers=)``; results do not depend on it)."""
+    threads: int | None = None
+    """Torch threads of the evaluation (None: all cores)."""
+    checkpoint_every: int = 5
+    """Save the team every this many rounds (an interrupted run resumes from it)."""
+    max_rounds: int | None = None
+    """Stop after this many rounds (None: when the streams end)."""
+    three_cullings: bool = False
+    """Also score NICE-SLAM-culled (where the source has the cameras) and unculled."""
+    plots: bool = True
+    progress: bool = True
+    title: str = ""
+    """Title of the pictures (e.g. the scene and policy)."""
+
+
+@dataclass
+class RunResult:
+    """A finished run: per-agent scores, their mean, the team's semantics, what the rounds cost."""
+
+    agents: dict[str, dict]
+    """Per agent: acc_cm, comp_cm, comp_ratio, f_miou, f_macc (+ other cullings), instances."""
+    mean: dict
+    team: dict
+    """F-mIoU / F-mAcc of all agents' maps together, per class."""
+    bytes_sent_total: int
+    bytes_per_round: list[int]
+    bytes_per_link_total: list[list[int]]
+    bytes_per_round_per_agent_mean: float
+    messages: dict[str, int]
+    fleet_s: float
+    compute_s: dict[str, float]
+    rounds: int
+    wall_s: float
+    config: dict
+    notes: str
+    extra: dict = field(default_factory=dict)
+    """Source-specific fields (e.g. ``map``, ``ground_truth``, ``masks``)."""
+
+    def as_json(self) -> dict:
+        """``metrics.json``."""
+        data = asdict(self)
+        extra = data.pop("extra")
+        return {**data, **extra}
+
+
+def run_team(source: Source, record: SourceRecord, config: RunConfig, schedule: Schedule,
+             start: float | None = None) -> RunResult:
+    """Map ``source`` with a team under ``schedule``, score every agent's map, write the outputs.
+
+    ``start`` is the ``time.perf_counter()`` the run's wall time counts from (default: now)."""
+    start = time.perf_counter() if start is None else start
+    out = Path(config.out)
+    # checkpoints must come from the same team settings too, defaults included: a run made before a
+    # default changed is mapped again, not resumed into a mix of two versions
+    forget_stale_checkpoints(out, {**record.settings, "team": as_record(asdict(config.team))})
+    team = Team(source.streams(), config.team, source.vocabulary(), seed=config.seed, channel=config.channel,
+                device=config.device, workers=config.workers)
+    try:
+        reports = run_rounds(team, schedule, out / "checkpoints" / "team.pt", config)
+    finally:
+        team.close()  # the worker threads (the team stays usable for evaluation)
+    set_threads(config.threads)  # evaluation runs on this thread alone: give it every core again
+    gt = source.ground_truth(config.seed)
+    scores = evaluate_team(source, record, gt, team, config)
+    result = RunResult(**scores, **round_costs(team, reports), wall_s=time.perf_counter() - start,
+                       config={**record.settings, "team": plain(asdict(config.team))},
+                       notes=" ".join(record.notes + [METRICS_NOTE.format(culling=gt.culling_note)]),
+                       extra=record.results)
+    write_outputs(out, result, reports, config)
+    return result
+
+
+def run_rounds(team: Team, schedule: Schedule, checkpoint: Path, config: RunConfig) -> list[dict]:
+    """Rounds until the streams end, resuming from ``checkpoint`` when it exists; per-round reports (JSON)."""
+    reports: list[dict] = []
+    if checkpoint.is_file():
+        try:
+            reports = team.load(checkpoint)["reports"]
+            print(f"[openmulti] resumed the team after round {team.round_index} from {checkpoint}")
+        except CheckpointError as exc:
+            print(f"[openmulti] ignoring unusable checkpoint ({exc}); starting again")
+    total = team.rounds_total() if config.max_rounds is None else min(config.max_rounds, team.rounds_total())
+    every = config.checkpoint_every
+    snapshots = team.snapshots()
+    with tqdm(total=total, initial=team.round_index, desc="rounds", unit="round", disable=not config.progress) as bar:
+        while not team.done and team.round_index < total:
+            report = team.round(schedule(team.round_index, snapshots))
+            snapshots = report.agents
+            reports.append(report.as_dict())
+            bar.set_postfix(MB=f"{sum(report.bytes_sent) / 1e6:.1f}", fleet_s=f"{report.fleet_s:.1f}",
+                            instances=sum(s.instances for s in snapshots))
+            bar.update(1)
+            if every and (team.round_index % every == 0 or team.round_index == total):
+                team.save(checkpoint, extra={"reports": reports})
+    return reports
+
+
+def evaluate_team(source: Source, record: SourceRecord, gt: GroundTruth, team: Team, config: RunConfig) -> dict:
+    """Mesh, cull and score every agent's own map against ``gt``; the team map's semantics; code books;
+    pictures."""
+    out, seed = Path(config.out), config.seed
+    views = source.camera_views(config.team.mapping.keyframe_every) if config.three_cullings else None
+    (out / "meshes").mkdir(parents=True, exist_ok=True)
+    gt.mesh.export(out / "meshes" / gt.file_name)
+    per_agent, maps = {}, []
+    for member in tqdm(team.members, desc="evaluating", unit="agent", disable=not config.progress):
+        per_agent[member.name], own = score_member(member, gt, views, seed, out, source.text_encoder,
+                                                   source.image_encoder, record.caption)
+        maps.append(own)
+        if config.plots:
+            save_rendered_views(out / "plots" / f"rendered_views_{member.name}.png", source, member,
+                                f"{source.name} {member.name}: sensor vs map")
+    union = team_semantics(maps, gt.semantic, out)
+    if config.plots:
+        from mapping.pipeline.plots import save_reconstruction_views, save_semantic_classes  # noqa: PLC0415
+
+        save_reconstruction_views(out / "plots" / "reconstruction_top_down.png", gt.mesh, [m.mesh for m in maps])
+        if union is not None:
+            save_semantic_classes(out / "plots" / "semantic_per_class.png", union, f"{source.name}: all agents' maps")
+    return {"agents": per_agent, "mean": mean_metrics(per_agent),
+            "team": {"f_miou": None if union is None else union.f_miou,
+                     "f_macc": None if union is None else union.f_macc,
+                     "per_class": [] if union is None else union.as_dict()["per_class"]}}
+
+
+def round_costs(team: Team, reports: list[dict]) -> dict:
+    """What the rounds cost: bytes (total, per round, per link), messages, fleet and compute seconds."""
+    n = team.num_agents
+    bytes_per_round = [int(sum(r["bytes_sent"])) for r in reports]
+    return {
+        "bytes_sent_total": int(team.channel.bytes_sent.sum()),
+        "bytes_per_round": bytes_per_round,
+        "bytes_per_link_total": team.channel.link_bytes.tolist(),
+        "bytes_per_round_per_agent_mean": float(np.mean(bytes_per_round) / max(n, 1)) if reports else 0.0,
+        "messages": {k: int(sum(r[k] for r in reports)) for k in ("delivered", "dropped", "over_budget")},
+        "fleet_s": float(sum(r["fleet_s"] for r in reports)),
+        "compute_s": {f"agent_{a}": float(sum(r["compute_s"][a] for r in reports)) for a in range(n)},
+        "rounds": len(reports),
+    }
+
+
+def write_outputs(out: Path, result: RunResult, reports: list[dict], config: RunConfig) -> None:
+    """``rounds.json``, ``metrics.json`` and (with ``plots``) the bytes-per-round picture."""
+    write_json_atomic(out / "rounds.json", {"rounds": reports})
+    write_json_atomic(out / "metrics.json", result.as_json())
+    if config.plots:
+        from mapping.pipeline.plots import save_round_bytes  # noqa: PLC0415
+
+        save_round_bytes(out / "plots" / "bytes_per_round.png", reports, config.title)
+
+
+def save_rendered_views(path: Path, source: Source, member, title: str) -> None:
+    """A few of the agent's frames: the sensor's RGB and depth beside the map rendered from the same pose."""
+    from mapping.pipeline.plots import save_view_comparison  # noqa: PLC0415
+
+    frames, stride = source.sensor_views(member.index)
+    views = []
+    for frame in frames:
+        rendered = member.mapper.render_view(frame.pose, frame.intrinsics, stride=stride)
+        views.append((frame, rendered.colour.cpu().numpy(), rendered.depth.cpu().numpy()))
+    save_view_comparison(path, views, stride, title)

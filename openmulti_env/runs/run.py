@@ -1,0 +1,228 @@
+"""``openmulti run``: a team maps the simulated world (``run``) or a real RGB-D data set (``run_data``)
+round by round under a scripted communication policy, through the one pipeline
+(``mapping.pipeline.run_team``). This module turns command-line options into a source, the team
+settings of a preset (``openmulti_env.presets``) and a schedule.
+"""
+
+from __future__ import annotations
+
+import time
+import warnings
+from dataclasses import asdict, replace
+from pathlib import Path
+
+import torch
+
+from mapping.agent import MappingConfig
+from mapping.data.source import DataSource, prepare_inputs
+from mapping.field import OBJECT_FIELD
+from mapping.perception import shared_text_encoder
+from mapping.perception.errors import SegmentationErrorConfig
+from mapping.perception.image_encoder import VisualFeatureNotice, load_image_encoder
+from mapping.pipeline import RunConfig, Schedule, SourceRecord, run_team
+from mapping.runtime import available_cores, set_threads
+from mapping.team import AgentSnapshot, ChannelConfig, ExchangeConfig, RoundPlan, TeamConfig
+from mapping.team.consistency import CONSISTENCY_ALGORITHMS
+from mapping.team.global_map import GLOBAL_ENCODING_SCALE, GLOBAL_WIDTH, global_rays_for, scene_frame
+from openmulti_env.environment.actions import actions_to_plan
+from openmulti_env.presets import Preset, get_preset
+from openmulti_env.runs.sim_source import SimulatedSource
+from openmulti_env.world import World
+from policies.scripted import ScriptedPolicy, parse_policy
+
+RUN_ALIGNMENT_MODES = ("paper", "none")
+
+
+def run(scene: str, agents: int, policy: str, preset: str, seed: int, out: Path, device: str = "auto",
+        alignment: str = "paper", segmentation_errors: bool = True, clip_checkpoint: str | None = None,
+        comm_budget_mb: float | None = None, consistency: str = "consensus", cross_rendering: bool = True,
+        float16: bool = False, changed_only: float | None = None, threads: int | None = None,
+        checkpoint_every: int = 5, progress: bool = True, max_rounds: int | None = None,
+        global_map: bool = False, global_width: int = GLOBAL_WIDTH,
+        global_encoding_scale: float = GLOBAL_ENCODING_SCALE, share_point_clouds: bool = False,
+        three_cullings: bool = False, plots: bool = True, workers: int | None = None) -> dict:
+    """A team run on the simulated ``scene``; returns the metrics written to ``out/metrics.json``.
+
+    Args:
+        policy: a scripted policy name (``policies.scripted``): always, never, bernoulli:P, round_robin,
+            budget.
+        alignment: ``paper`` (arrived instances are aligned, sec. III-C) or ``none`` (every arrived
+            instance is adopted as a new one: the ablation).
+        segmentation_errors: apply the front end's default error model (else perfect masks).
+        clip_checkpoint: local open_clip checkpoint for visual features (None: caption features only).
+        comm_budget_mb: bytes each agent may send over the run (None: unlimited).
+        consistency: parameter consistency (eq. 12): consensus, dinno, dsgd or none.
+        cross_rendering: Cross Rendering Supervision on shared rays (eq. 13).
+        float16, changed_only: what parameter messages carry (``ExchangeConfig``).
+        threads: torch threads (default: all cores).
+        checkpoint_every: save the team every this many rounds (an interrupted run resumes from it).
+        max_rounds: stop after this many rounds (None: when the paths end), e.g. for smoke tests.
+        global_map: one network of width ``global_width`` (encoding scale ``global_encoding_scale``)
+            for the whole scene per agent, with the instance-level map's per-step compute
+            (``mapping.team.global_map``): the global baselines.
+        share_point_clouds: "send parameters" links carry the observed points instead (Table VI).
+        three_cullings: also score every map NICE-SLAM-culled and unculled (``mapping.pipeline.scoring``).
+        plots: write the pictures (the experiments skip them: they cost seconds per run).
+        workers: agents trained side by side on threads (same results as 1). Default: one per core when
+            ``threads`` is not given (each with 1 torch thread: small batches use one core better than
+            two), else 1.
+    """
+    chosen = get_preset(preset)
+    scripted = team_policy(policy, agents, alignment, consistency, comm_budget_mb)
+    workers = team_workers(agents, threads, workers)
+    set_threads(threads, workers=workers)
+    start = time.perf_counter()
+    torch.manual_seed(seed)
+    image_encoder = image_encoder_said_once(clip_checkpoint)
+    world = World.build(scene, seed=seed, config=chosen.world_config(agents))
+    settings = {"scene": scene, "agents": agents, "policy": policy, "preset": preset, "seed": seed,
+                "alignment": alignment, "segmentation_errors": segmentation_errors, "clip_checkpoint": clip_checkpoint,
+                "comm_budget_mb": comm_budget_mb, "consistency": consistency, "cross_rendering": cross_rendering,
+                "float16": float16, "changed_only": changed_only}
+    if global_map or share_point_clouds or three_cullings:  # older runs' settings stay as they were
+        settings.update({"global_map": global_map, "global_width": global_width,
+                         **({"global_encoding_scale": global_encoding_scale} if global_map else {}),
+                         "share_point_clouds": share_point_clouds, "three_cullings": three_cullings})
+    print(f"[openmulti] world {world.scene.name}: {len(world.scene.instances)} instances, "
+          f"{world.num_agents} agent(s), {sum(len(p) for p in world.agent_poses)} frames")
+    source = SimulatedSource(world, seed, shared_text_encoder(name=chosen.text_encoder), image_encoder,
+                             segmentation_errors)
+    mapping, map_info = map_structure(world, chosen, global_map, global_width, global_encoding_scale)
+    team = run_team_config(chosen, alignment, consistency, cross_rendering, float16, changed_only, mapping=mapping,
+                           global_map=global_map, share_point_clouds=share_point_clouds)
+    errors = SegmentationErrorConfig() if segmentation_errors else SegmentationErrorConfig.none()
+    # the checkpoint key holds the settings only (the error rates follow from them)
+    record = SourceRecord(settings, {"map": map_info})
+    config = RunConfig(Path(out), team, team_channel(scripted, comm_budget_mb), seed=seed, device=device,
+                       workers=workers, threads=threads, checkpoint_every=checkpoint_every, max_rounds=max_rounds,
+                       three_cullings=three_cullings, plots=plots, progress=progress,
+                       title=f"{world.scene.name}: policy {policy}")
+    try:
+        result = run_team(source, record, config, scripted_schedule(scripted), start=start)
+    finally:
+        world.close()
+    metrics = result.as_json()
+    metrics["config"] = {**settings, "error_rates": asdict(errors), "team": metrics["config"]["team"]}
+    return metrics
+
+
+def run_data(data: str | Path, agents: int, policy: str, preset: str, seed: int, out: Path, *, kind: str = "auto",
+             gt_mesh: str | None = None, frames: str | None = None, intrinsics: str | None = None,
+             depth_scale: float | None = None, device: str = "auto", alignment: str = "paper",
+             clip_checkpoint: str | None = None, comm_budget_mb: float | None = None, consistency: str = "consensus",
+             cross_rendering: bool = True, float16: bool = False, changed_only: float | None = None,
+             threads: int | None = None, checkpoint_every: int = 5, progress: bool = True,
+             max_rounds: int | None = None, workers: int | None = None) -> dict:
+    """A team run on a real RGB-D data set split into ``agents`` contiguous sequences; returns the metrics
+    written to ``out/metrics.json``.
+
+    Args:
+        data: the data set folder (Replica vMAP or NICE-SLAM layout, or a ScanNet export).
+        kind, gt_mesh, frames, intrinsics, depth_scale: see ``openmulti run --help``.
+        the rest: as ``run``.
+    """
+    chosen = get_preset(preset)
+    scripted = team_policy(policy, agents, alignment, consistency, comm_budget_mb)
+    workers = team_workers(agents, threads, workers)
+    set_threads(threads, workers=workers)
+    start = time.perf_counter()
+    torch.manual_seed(seed)
+    image_encoder = image_encoder_said_once(clip_checkpoint)
+    encoder = shared_text_encoder(name=chosen.text_encoder)
+    inputs = prepare_inputs(data, kind, agents, frames, intrinsics, depth_scale, gt_mesh, encoder, image_encoder,
+                            culling_edge_m=chosen.culling_edge_m, seed=seed, progress=progress)
+    for note in inputs.notes:
+        print(f"[openmulti] note: {note}")
+    source = DataSource(inputs, encoder, image_encoder)
+    record = source.record({"data": str(Path(data).resolve()), "agents": agents, "policy": policy, "preset": preset,
+                            "seed": seed, "alignment": alignment, "frames": frames, "intrinsics": intrinsics,
+                            "depth_scale": depth_scale, "gt_mesh": gt_mesh, "clip_checkpoint": clip_checkpoint,
+                            "comm_budget_mb": comm_budget_mb, "consistency": consistency,
+                            "cross_rendering": cross_rendering, "float16": float16, "changed_only": changed_only})
+    team = run_team_config(chosen, alignment, consistency, cross_rendering, float16, changed_only)
+    config = RunConfig(Path(out), team, team_channel(scripted, comm_budget_mb), seed=seed, device=device,
+                       workers=workers, threads=threads, checkpoint_every=checkpoint_every, max_rounds=max_rounds,
+                       progress=progress, title=f"{inputs.name}: policy {policy}")
+    return run_team(source, record, config, scripted_schedule(scripted), start=start).as_json()
+
+
+def team_policy(policy: str, agents: int, alignment: str, consistency: str,
+                comm_budget_mb: float | None) -> ScriptedPolicy:
+    """The scripted policy of a team run, after checking the options (ValueError naming the problem)."""
+    spec = parse_policy(policy)
+    if alignment not in RUN_ALIGNMENT_MODES:
+        raise ValueError(f"unknown alignment {alignment!r} for a team run; choose one of {RUN_ALIGNMENT_MODES} "
+                         "(the team has no ground-truth 'oracle' alignment; it is in benchmarks/bench_alignment.py)")
+    if consistency not in CONSISTENCY_ALGORITHMS:
+        raise ValueError(f"unknown consistency {consistency!r}; choose one of {CONSISTENCY_ALGORITHMS}")
+    if comm_budget_mb is not None and not comm_budget_mb >= 0:
+        raise ValueError(f"--comm-budget-mb must be >= 0, got {comm_budget_mb}")
+    if spec.rule == "budget" and comm_budget_mb is None:
+        raise ValueError("policy 'budget' needs --comm-budget-mb MB (the megabytes each agent may send over the run)")
+    return ScriptedPolicy(spec, agents)
+
+
+def team_workers(agents: int, threads: int | None, workers: int | None) -> int:
+    """Agent worker threads: ``workers``, or one per core (up to one per agent) when ``threads`` is not given."""
+    if workers is None:
+        workers = min(available_cores(), agents) if threads is None else 1
+    if workers < 1:
+        raise ValueError(f"workers must be >= 1, got {workers}")
+    return workers
+
+
+def image_encoder_said_once(clip_checkpoint: str | None):
+    """The optional image-text encoder; its absence is said once, as one line."""
+    with warnings.catch_warnings(record=True) as notices:
+        warnings.simplefilter("always", VisualFeatureNotice)
+        image_encoder = load_image_encoder(clip_checkpoint)
+    for notice in notices:
+        print(f"[openmulti] note: {notice.message}")
+    return image_encoder
+
+
+def scripted_schedule(policy: ScriptedPolicy) -> Schedule:
+    """A scripted policy as the pipeline's schedule: it reads each agent's budget left, as the env's infos."""
+    def schedule(round_index: int, snapshots: list[AgentSnapshot]) -> RoundPlan:
+        infos = {s.name: {"budget_left_mb": s.budget_left_bytes / 1e6} for s in snapshots}
+        return actions_to_plan(policy(infos, round_index), [s.name for s in snapshots])
+    return schedule
+
+
+def team_channel(policy: ScriptedPolicy, comm_budget_mb: float | None) -> ChannelConfig:
+    """The links of a run: the policy's success probability, ``comm_budget_mb`` per agent (None: unlimited)."""
+    return ChannelConfig(policy.spec.success_probability, None if comm_budget_mb is None else comm_budget_mb * 1e6)
+
+
+def run_team_config(preset: Preset, alignment: str, consistency: str, cross_rendering: bool, float16: bool,
+                    changed_only: float | None, mapping: MappingConfig | None = None, global_map: bool = False,
+                    share_point_clouds: bool = False) -> TeamConfig:
+    """The team settings of a run from its command-line options (on the preset's ``team_config``)."""
+    return preset.team_config(mapping=mapping, alignment=alignment == "paper", global_map=global_map,
+                              consistency={"algorithm": consistency, "cross_rendering": cross_rendering},
+                              exchange=ExchangeConfig(float16=float16, changed_only=changed_only,
+                                                      point_clouds=share_point_clouds))
+
+
+def map_structure(world: World, preset: Preset, global_map: bool, width: int,
+                  encoding_scale: float = GLOBAL_ENCODING_SCALE) -> tuple[MappingConfig, dict]:
+    """The mapper settings and a description of the map (widths, rays per step) for the table.
+
+    A global map gets the scene box as its frame and the rays per step that buy the per-step MLP
+    FLOPs of an instance-level map of this scene's instances (``global_rays_for``)."""
+    mapping = preset.mapping
+    objects = sum(1 for i in world.scene.instances if not i.is_structure)
+    structures = len(world.scene.instances) - objects
+    if not global_map:
+        return mapping, {"kind": "instance", "object_width": OBJECT_FIELD.hidden_width,
+                         "structure_width": mapping.structure_width, "rays_per_object": mapping.rays_per_object,
+                         "rays_per_structure": mapping.rays_per_structure,
+                         "rays_per_step_at_scene_instances": objects * mapping.rays_per_object
+                         + structures * mapping.rays_per_structure}
+    rays = global_rays_for(objects, structures, mapping.rays_per_object, mapping.rays_per_structure,
+                           OBJECT_FIELD.hidden_width, mapping.structure_width, width)
+    info = {"kind": "global", "width": width, "encoding_scale": encoding_scale, "rays_per_step": rays,
+            "matched_to": f"{objects} objects x {mapping.rays_per_object} rays at width {OBJECT_FIELD.hidden_width} "
+                          f"+ {structures} structures x {mapping.rays_per_structure} at width {mapping.structure_width}"}
+    return replace(mapping, structure_width=width, structure_encoding_scale=encoding_scale, rays_per_structure=rays,
+                   global_frame=scene_frame(world.scene.size_m)), info
