@@ -57,7 +57,7 @@ def run_key(overrides: dict, scene: str, preset: str, seed: int) -> dict:
 
     from mapping.team import ConsistencyConfig
     from openmulti_env.runs.reproduce.runner import library_defaults
-    from openmulti_env.runs.run import as_record
+    from mapping.pipeline.records import as_record
 
     defaults = library_defaults(preset)
     return {"scene": scene, "preset": preset, "seed": seed,
@@ -88,9 +88,8 @@ def run_variant(name: str, overrides: dict, scene: str, preset: str, seed: int, 
     from mapping.evaluate.probe import surface_probe_coverage
     from mapping.perception import shared_text_encoder
     from mapping.runtime import set_threads
-    from mapping.team import ChannelConfig, ConsistencyConfig, RoundPlan, Team
-    from openmulti_env.runs.run import _map_structure
-    from openmulti_env.presets import team_config, world_config
+    from mapping.team import ChannelConfig, RoundPlan, Team
+    from openmulti_env.presets import mapping_config, team_config, world_config
     from openmulti_env.world.stream import world_streams, world_vocabulary
     from openmulti_env.world import World
     from tqdm import tqdm
@@ -98,8 +97,7 @@ def run_variant(name: str, overrides: dict, scene: str, preset: str, seed: int, 
     set_threads(threads)
     world = World.build(scene, seed=seed, config=world_config(preset, 4))
     encoder = shared_text_encoder()
-    mapping, _ = _map_structure(world, preset, False, 128)
-    config = team_config(preset, mapping=mapping, consistency=overrides)
+    config = team_config(preset, mapping=mapping_config(preset), consistency=overrides)
     team = Team(world_streams(world, seed, True, text_encoder=encoder), config, world_vocabulary(world, encoder),
                 seed=seed, channel=ChannelConfig(1.0, None), device="cpu")
     start = time.perf_counter()

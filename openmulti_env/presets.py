@@ -19,7 +19,7 @@ env step costs about a second (``rl``, the env's default) or a tenth of one (``r
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 from mapping.agent import MappingConfig
 from mapping.team import ConsistencyConfig, TeamConfig

@@ -180,7 +180,7 @@ def box_at(x: float, y: float, size=(1.0, 1.0, 0.8)) -> trimesh.Trimesh:
     return box
 
 
-def write_run(root, encoder, team: bool = False):
+def write_run(root, encoder):
     """A run directory by hand: per-agent meshes with vertex ids and code books."""
     bed, chair = box_at(1.0, 1.0, (2.0, 1.6, 0.5)), box_at(4.0, 1.0)
     floor = trimesh.creation.box((6.0, 3.0, 0.02))
@@ -191,15 +191,11 @@ def write_run(root, encoder, team: bool = False):
     export_scene_mesh(root / "meshes" / "agent_0.ply", mesh, ids)
     (root / "metrics.json").write_text(json.dumps({"config": {"scene": "fake", "agents": 2, "seed": 0}}))
     captions = {1: "the oak floor", 2: "a soft double bed", 3: "a wooden chair"}
-    if team:
-        export_scene_mesh(root / "meshes" / "agent_1.ply", chair, np.full(len(chair.vertices), 3))
-        make_book(encoder, captions).save(root / "codebook", "team")
-    else:
-        make_book(encoder, captions).save(root / "codebook", "agent_0")
-        book1 = make_book(encoder, {1: "a wooden chair"})  # agent_1 saw only the chair (its local id 1)
-        book1[1].label = "chair"
-        export_scene_mesh(root / "meshes" / "agent_1.ply", chair, np.full(len(chair.vertices), 1))
-        book1.save(root / "codebook", "agent_1")
+    make_book(encoder, captions).save(root / "codebook", "agent_0")
+    book1 = make_book(encoder, {1: "a wooden chair"})  # agent_1 saw only the chair (its local id 1)
+    book1[1].label = "chair"
+    export_scene_mesh(root / "meshes" / "agent_1.ply", chair, np.full(len(chair.vertices), 1))
+    book1.save(root / "codebook", "agent_1")
     return root
 
 
@@ -213,15 +209,6 @@ def test_query_cli_prints_json_and_draws_the_winner(encoder, tmp_path, capsys):
     assert {r["agent"] for r in out["results"]} <= {"agent_0", "agent_1"}
     png = run / "plots" / "query_the_bed.png"
     assert out["plot"] == str(png) and png.stat().st_size > 5_000
-
-
-def test_query_cli_prefers_the_team_code_book(encoder, tmp_path, capsys):
-    run = write_run(tmp_path / "run", encoder, team=True)
-    assert main(["query", "--run", str(run), "a chair"]) == 0
-    best = json.loads(capsys.readouterr().out)["results"][0]
-    assert (best["id"], best["agent"], best["category"]) == (3, "team", "chair")
-    assert best["seen_by"] == ["agent_0", "agent_1"]
-    assert not (run / "plots").exists()  # the picture is drawn only with --plot
 
 
 def test_query_cli_errors_exit_2_with_a_clear_message(encoder, tmp_path, capsys):

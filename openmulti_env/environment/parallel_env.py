@@ -7,10 +7,10 @@
 | Parallel API       | Yes                                                                        |
 | Manual Control     | No                                                                         |
 | Agents             | `agents= ['agent_0', ..., 'agent_{N-1}']`                                  |
-| Agents             | N = 2-8 (preset `fast`/`full`: 4, `tiny`: 2)                               |
+| Agents             | N = 2-8 (4 by default; preset `rl_tiny`: 2)                                 |
 | Action Shape       | (2(N-1),)                                                                  |
 | Action Values      | {0, 1}                                                                     |
-| Observation Shape  | (map_size, map_size, 7): 64x64x7 (`fast`), 48x48x7 (`tiny`), 96x96x7 (`full`) |
+| Observation Shape  | (map_size, map_size, 7): 64x64x7 (`rl`, `fast`), 48x48x7 (`rl_tiny`), 96x96x7 (`full`) |
 | Observation Values | uint8 [0, 255]                                                             |
 | State Shape        | (map_size, map_size, 7N)                                                   |
 | State Values       | uint8 [0, 255]                                                             |
@@ -47,7 +47,7 @@ its own gain, its own megabytes and refused messages. Ratios are fractions (0-1)
 without costs is the final completion ratio.
 
 ### Episode
-Truncation when every path is read (`fast`: 24 steps, `tiny`: 8, `full`: 20) or after `horizon` steps;
+Truncation when every path is read (`rl`, `fast`: 24 steps, `rl_tiny`: 8, `demo`: 12, `full`: 20) or after `horizon` steps;
 no termination. `infos[agent]` always holds the same numeric keys: `completion_ratio` (percent),
 `completion_gain` (percent points), `bytes_sent`, `bytes_received` (this step), `bytes_sent_total`,
 `budget_left_mb` (inf without a budget), `messages_delivered`, `messages_dropped`,
@@ -60,11 +60,13 @@ network initialisation, ray sampling). Same seeds, same actions: the same episod
 
 ### Arguments
 ```python
-parallel_env(scene=None, num_agents=None, preset="fast", seed=None, render_mode=None,
+parallel_env(scene=None, num_agents=None, preset="rl", seed=None, render_mode=None,
              comm_budget_mb=None, reward="team", max_cycles=None, **overrides)
 ```
-`scene`: a preset name, `random:SEED` or a manifest path (default: the preset's, room0; `tiny`: the
-small `tiny` room). `num_agents`: 2-8 (default: the preset's). `preset`: `tiny`, `fast` or `full`.
+`scene`: a scene preset name, `random:SEED` or a manifest path (default: the preset's, room0; `rl_tiny`:
+the small `tiny` room). `num_agents`: 2-8 (default: the preset's). `preset`: one of the table in
+`openmulti_env.presets`, the same episodes as `openmulti run --preset`: `rl` (the default, RL-sized: 24
+steps of about a second), `rl_tiny` (8 steps, for tests), `tiny`, `demo`, `fast`, `full` (the paper's).
 `seed`: the world's seed. `render_mode`: None or `rgb_array` (`human` is accepted and draws nothing:
 the env is headless). `comm_budget_mb`: megabytes each agent may send per episode. `reward`: `team` or
 `individual`. `max_cycles`: the horizon (alias of `horizon`). `overrides`: any `EnvConfig` field

@@ -1,5 +1,6 @@
-"""The ``openmulti`` command line: ``scenes``, ``run`` (a team maps a scene round by round under a scripted
-communication policy), ``query`` and ``reproduce`` (the paper's tables); ``train`` arrives with the env.
+"""The ``openmulti`` command line: ``scenes``, ``run`` (a team maps a scene or a data set round by round under a
+scripted communication policy), ``query``, ``reproduce`` (the paper's tables) and ``cache``; ``train`` is not
+there yet.
 
 Heavy modules (torch, open3d, the world) are imported inside the commands that need them, so that
 ``openmulti query`` starts fast."""
@@ -21,7 +22,8 @@ RUN_PRESETS = ("tiny", "demo", "fast", "full", "rl_tiny", "rl")  # openmulti_env
 MAX_AGENTS = 8  # openmulti_env.world.world.MAX_AGENTS (a test checks they agree)
 
 PENDING = {
-    "train": "training communication schedules needs the PettingZoo env",
+    "train": "learning communication schedules is not implemented yet; the PettingZoo env it will train on is "
+             "there (from openmulti_env import parallel_env; README, 'The PettingZoo env')",
 }
 
 
@@ -33,6 +35,18 @@ def check_policy(name: str) -> str:
         raise ValueError(f"{name}: openmulti run takes the scripted policies (always, never, round_robin, budget, "
                          "bernoulli:P); trained policies run through the PettingZoo env")
     return spec.name
+
+
+class _DefaultsShown(argparse.HelpFormatter):
+    """Help that ends with the option's default, where it has one worth saying (not None or a flag's)."""
+
+    def _get_help_string(self, action):
+        text = action.help or ""
+        default = action.default
+        unsaid = default is None or default is False or default is True or default == argparse.SUPPRESS
+        if "default" in text or unsaid or not action.option_strings:
+            return text
+        return f"{text} (default: {default})"
 
 
 def _agents(value: str) -> int:
@@ -172,14 +186,16 @@ def cmd_cache(args: argparse.Namespace) -> int:
 
 def build_parser() -> argparse.ArgumentParser:
     """Argument parser of the ``openmulti`` command."""
-    parser = argparse.ArgumentParser(prog="openmulti", description="OpenMulti multi-agent implicit mapping")
+    parser = argparse.ArgumentParser(prog="openmulti", description="OpenMulti multi-agent implicit mapping",
+                                     formatter_class=_DefaultsShown)
     sub = parser.add_subparsers(dest="command", required=True)
 
-    p = sub.add_parser("scenes", help="list presets, or describe one scene and its coverage")
-    p.add_argument("scene", nargs="?", help="preset name, random:SEED or manifest path")
-    p.add_argument("--agents", type=_agents, default=4)
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--preset", choices=RUN_PRESETS, default="fast")
+    fmt = _DefaultsShown
+    p = sub.add_parser("scenes", help="list presets, or describe one scene and its coverage", formatter_class=fmt)
+    p.add_argument("scene", nargs="?", help="preset name, random:SEED or manifest path (none: list the presets)")
+    p.add_argument("--agents", type=_agents, default=4, help="agents (one path each)")
+    p.add_argument("--seed", type=int, default=0, help="layout and paths seed (0: the canonical room)")
+    p.add_argument("--preset", choices=RUN_PRESETS, default="fast", help="episode size (frames, image size)")
     p.add_argument("--json", action="store_true", help="print JSON")
     p.add_argument("--render", metavar="DIR", help="write a top-down picture and a few frames per agent")
     p.add_argument("--export", metavar="DIR", help="write the world as an RGB-D data set (frames of all agents)")
@@ -187,13 +203,19 @@ def build_parser() -> argparse.ArgumentParser:
                    help="data set layout of --export")
     p.set_defaults(func=cmd_scenes)
 
-    p = sub.add_parser("run", help="a multi-agent team run on one scene (--scene) or a real RGB-D data set (--data)")
-    p.add_argument("--scene", default="room0")
-    p.add_argument("--agents", type=_agents, default=4)
-    p.add_argument("--policy", default="always")
-    p.add_argument("--preset", choices=RUN_PRESETS, default="fast")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--out", default="runs/demo")
+    p = sub.add_parser("run", help="a multi-agent team run on one scene (--scene) or a real RGB-D data set (--data)",
+                       formatter_class=fmt)
+    p.add_argument("--scene", default="room0", help="scene preset (openmulti scenes lists them), random:SEED, or "
+                   "the path of a JSON/YAML manifest of your own meshes")
+    p.add_argument("--agents", type=_agents, default=4, help="agents in the team (each maps its own region)")
+    p.add_argument("--policy", default="always", help="communication policy: always, never, bernoulli:P (each "
+                   "message arrives with probability P), round_robin, budget (with --comm-budget-mb)")
+    p.add_argument("--preset", choices=RUN_PRESETS, default="fast",
+                   help="episode size: tiny (smoke), demo (make demo), fast, full (the paper's), rl_tiny, rl "
+                        "(the env's RL-sized ones)")
+    p.add_argument("--seed", type=int, default=0, help="one seed for layout, paths, segmentation errors, channel "
+                   "draws and network initialisation")
+    p.add_argument("--out", default="runs/demo", help="output folder (the same folder and settings resume a run)")
     p.add_argument("--device", default="auto", help="cpu, cuda or auto (cuda when available)")
     p.add_argument("--alignment", choices=("paper", "none"), default="paper",
                    help="align arrived instances (paper, sec. III-C) or adopt each as a new one (none)")
@@ -217,7 +239,8 @@ def build_parser() -> argparse.ArgumentParser:
                              "--perfect-masks aside: the masks are the data set's or the geometric segmenter's)")
     g.add_argument("--data", metavar="DIR", help="a data set folder: Replica (vMAP or NICE-SLAM layout) or ScanNet, "
                    "cut into --agents contiguous sequences")
-    g.add_argument("--kind", choices=("auto", "replica", "nice_slam", "scannet"), default="auto")
+    g.add_argument("--kind", choices=("auto", "replica", "nice_slam", "scannet"), default="auto",
+                   help="data set layout (auto: detected from the folder)")
     g.add_argument("--gt-mesh", metavar="PLY", help="ground-truth mesh (else a TSDF reference of the frames)")
     g.add_argument("--frames", metavar="A:B:S", help="frames A..B-1 every S-th, before the split into agents")
     g.add_argument("--intrinsics", metavar="FX,FY,CX,CY", help="override the data set's camera")
@@ -225,7 +248,7 @@ def build_parser() -> argparse.ArgumentParser:
                    "vMAP / 6553.5 NICE-SLAM, ScanNet 1000; default: the layout's or cam_params.json)")
     p.set_defaults(func=cmd_run)
 
-    p = sub.add_parser("query", help="open-vocabulary instance retrieval on a finished run")
+    p = sub.add_parser("query", help="open-vocabulary instance retrieval on a finished run", formatter_class=fmt)
     p.add_argument("text", metavar="TEXT", nargs="?", help='what to look for, e.g. "somewhere to sleep"')
     p.add_argument("--queries", metavar="FILE", help="one query per line (# comments): prints a JSON list")
     p.add_argument("--run", required=True, metavar="DIR", help="run directory (with codebook/ and meshes/)")
@@ -236,14 +259,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--plot", action="store_true", help="also write DIR/plots/query_<slug>.png (about a second more)")
     p.set_defaults(func=cmd_query)
 
-    p = sub.add_parser("reproduce", help="the paper's experiments: Tables I and III-VI (and the semantic table)")
+    p = sub.add_parser("reproduce", help="the paper's experiments: Tables I and III-VI (and the semantic table)",
+                       formatter_class=fmt)
     p.add_argument("--table", required=True, help="geometric, multi-vs-single, semantic, ablation, comm-failure, "
                    "transmission or all")
-    p.add_argument("--scenes", nargs="+", default=["room0"], metavar="S")
-    p.add_argument("--seeds", nargs="+", type=int, default=[0], metavar="K")
-    p.add_argument("--preset", choices=RUN_PRESETS, default="fast")
+    p.add_argument("--scenes", nargs="+", default=["room0"], metavar="S", help="scenes of the grid")
+    p.add_argument("--seeds", nargs="+", type=int, default=[0], metavar="K", help="seeds of the grid")
+    p.add_argument("--preset", choices=RUN_PRESETS, default="fast", help="episode size of every run")
     p.add_argument("--agents", type=_agents, default=4, help="agents of the team methods (single_agent has 1)")
-    p.add_argument("--out", default="runs/reproduce", metavar="DIR")
+    p.add_argument("--out", default="runs/reproduce", metavar="DIR",
+                   help="folder of the tables, rows and runs (started again, finished runs are reused)")
     p.add_argument("--threads", type=int, default=1, help="torch threads per run (runs go one at a time)")
     p.add_argument("--device", default="cpu", help="cpu, cuda or auto")
     p.add_argument("--free-space-only", action="store_true",
@@ -254,13 +279,14 @@ def build_parser() -> argparse.ArgumentParser:
                    help="make no run: write the tables from the runs already finished (missing ones are named)")
     p.set_defaults(func=cmd_reproduce)
 
-    p = sub.add_parser("cache", help="the env's world-geometry cache: where it is, its size, --clear")
+    p = sub.add_parser("cache", help="the env's world-geometry cache: where it is, its size, --clear",
+                       formatter_class=fmt)
     p.add_argument("--dir", metavar="DIR", help="cache folder (default: $OPENMULTI_CACHE/worlds or ~/.cache/openmulti/worlds)")
     p.add_argument("--clear", action="store_true", help="delete every cached world")
     p.set_defaults(func=cmd_cache)
 
     for name, why in PENDING.items():
-        p = sub.add_parser(name, help=f"(not available yet: {why})")
+        p = sub.add_parser(name, help=f"(not available yet: {why.split(';')[0]})")
         p.add_argument("rest", nargs=argparse.REMAINDER)
         p.set_defaults(func=lambda a, why=why, name=name: _pending(name, why))
     return parser

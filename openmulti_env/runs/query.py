@@ -1,9 +1,8 @@
 """``openmulti query --run DIR "TEXT"``: open-vocabulary instance retrieval on a finished run.
 
 A run directory holds ``metrics.json`` (its ``config``), ``meshes/agent_K.ply`` (scene meshes whose
-vertices carry instance ids) and ``codebook/agent_K.json/.npz``; after cross-agent alignment also
-``codebook/team.json/.npz``, whose global ids the agents' meshes then share. The team code book is
-preferred when present. ``load_map(DIR)`` reads the code books once and encodes them for retrieval
+vertices carry instance ids) and ``codebook/agent_K.json/.npz`` (each agent's ids are its own).
+``load_map(DIR)`` reads the code books once and encodes them for retrieval
 (``mapping.evaluate.retrieval.RetrievalIndex``), so ``.query(text)`` costs one query encoding.
 
 Speed: the text encoder runs on the NumPy backend (no torch import) and nothing heavy is imported
@@ -26,9 +25,6 @@ from mapping.evaluate.retrieval import RetrievalHit, RetrievalIndex, check_encod
 from mapping.perception.codebook import CodeBook, CodeBookError
 
 __all__ = ["QueryResult", "RunMap", "load_map", "load_run_codebooks", "query_slug", "run_query"]
-
-TEAM = "team"
-"""Name of the aligned, team-wide code book (and the ``agent`` of its hits)."""
 
 MAX_PLOT_POINTS = 150_000
 """Background points drawn at most (a random subset beyond that keeps the scatter fast)."""
@@ -60,7 +56,7 @@ def query_slug(text: str, max_len: int = 60) -> str:
 
 
 def load_run_codebooks(run_dir: Path) -> dict[str, CodeBook]:
-    """``{"team": book}`` when ``codebook/team.*`` exists, else ``{"agent_K": book}`` for every agent.
+    """``{"agent_K": book}`` for every agent.
 
     Raises:
         FileNotFoundError: the run directory does not exist.
@@ -70,12 +66,9 @@ def load_run_codebooks(run_dir: Path) -> dict[str, CodeBook]:
     if not run_dir.is_dir():
         raise FileNotFoundError(f"run directory not found: {run_dir}")
     folder = run_dir / "codebook"
-    if (folder / f"{TEAM}.json").is_file():
-        return {TEAM: CodeBook.load(folder, TEAM)}
     names = sorted((p.stem for p in folder.glob("agent_*.json")), key=_agent_index)
     if not names:
-        raise CodeBookError(f"no code book in {folder} (expected agent_K.json + agent_K.npz, or team.json + "
-                            "team.npz): was the run made with the perception front end?")
+        raise CodeBookError(f"no code book in {folder} (expected agent_K.json + agent_K.npz): was the run made with the perception front end?")
     return {name: CodeBook.load(folder, name) for name in names}
 
 
@@ -143,7 +136,7 @@ def _load_meshes(run_dir: Path, points_per_mesh: int = PLOT_POINTS_PER_MESH) -> 
     The points are the vertices plus area-uniform samples on the faces (each sample takes the id of
     its face's first vertex), so low-poly meshes still draw as filled shapes.
     """
-    import trimesh  # noqa: PLC0415 (meshes are for the picture and ``seen_by`` only)
+    import trimesh  # noqa: PLC0415 (meshes are for the picture only)
 
     from mapping.evaluate.meshing import load_scene_mesh  # noqa: PLC0415
 
@@ -209,10 +202,7 @@ def run_query(run_dir: str | Path, text: str, top_k: int = 5, clip_checkpoint: s
     hits = run_map.rank(text)
     results = run_map.query(text, top_k)
     payload = {"query": text, "run": str(run_dir), "scene": _scene_name(run_dir), "results": results}
-    meshes = _load_meshes(run_dir) if plot or run_map.books.keys() == {TEAM} and (run_dir / "meshes").is_dir() else {}
-    if run_map.books.keys() == {TEAM}:
-        for r in results:  # which agents' meshes hold this global id
-            r["seen_by"] = [a for a, (_, ids) in meshes.items() if np.any(ids == r["id"])]
+    meshes = _load_meshes(run_dir) if plot else {}
     picture = None
     if plot and hits and meshes:
         labels_by_agent = {agent: index.labels for agent, index in run_map.indexes.items()}
@@ -239,13 +229,12 @@ def _plot_query(path: Path, text: str, best: tuple[str, RetrievalHit], meshes: d
     import matplotlib.pyplot as plt  # noqa: PLC0415
 
     def points_of(agent: str, instance_id: int) -> np.ndarray:
-        sources = meshes.values() if agent == TEAM else [meshes[agent]] if agent in meshes else []
+        sources = [meshes[agent]] if agent in meshes else []
         return np.concatenate([v[ids == instance_id] for v, ids in sources] or [np.zeros((0, 3))])
 
-    team_labels = labels_by_agent.get(TEAM)
     background = []
     for agent, (verts, ids) in meshes.items():
-        labels = team_labels if team_labels is not None else labels_by_agent.get(agent, {})
+        labels = labels_by_agent.get(agent, {})
         ceiling = [i for i, label in labels.items() if label == "ceiling"]
         background.append(verts[~np.isin(ids, ceiling)])
     background = np.concatenate(background)

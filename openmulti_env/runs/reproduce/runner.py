@@ -21,9 +21,6 @@ from openmulti_env.runs.reproduce.methods import METHODS
 from openmulti_env.runs.reproduce.tables import RunSpec
 from mapping.pipeline.records import write_json_atomic
 
-ROW_KEYS = ("method", "scene", "seed", "agents", "success_rate", "acc_cm", "comp_cm", "comp_ratio",
-            "bytes_per_round", "time_per_round_s")
-
 
 def check_scenes(scenes: list[str]) -> None:
     """ValueError naming an unknown scene and listing the known ones (presets, random:SEED, a manifest)."""
@@ -50,7 +47,7 @@ def run_settings(spec: RunSpec, preset: str, three_cullings: bool, max_rounds: i
 def library_defaults(preset: str) -> dict:
     """The team settings a run takes from the library (JSON-plain), beside its method's options."""
     from mapping.team import ConsistencyConfig, ExchangeConfig  # noqa: PLC0415
-    from openmulti_env.runs.run import as_record  # noqa: PLC0415
+    from mapping.pipeline.records import as_record  # noqa: PLC0415
     from openmulti_env.presets import mapping_config  # noqa: PLC0415
 
     return as_record({"consistency": asdict(ConsistencyConfig()), "exchange": asdict(ExchangeConfig()),

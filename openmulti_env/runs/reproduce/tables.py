@@ -15,7 +15,6 @@ TABLES = ("geometric", "multi-vs-single", "semantic", "ablation", "comm-failure"
 """``all`` runs every one of them (runs shared between tables are made once)."""
 FAILURE_RATES = (1.0, 0.8, 0.5, 0.2)
 """Link success rates of Table V."""
-GEOMETRIC_KEYS = ("acc_cm", "comp_cm", "comp_ratio")
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,83 @@
+"""What a team member sends (step 4 of a round): its parameter messages (per instance: network vector,
+box, frame, code-book entry; the down-sampled cloud the first time or after it doubled), point-cloud
+messages (Table VI's alternative) and ray messages (its mapped views' poses and a pixel seed, eq. 13).
+What a peer holds is booked only when the link acknowledges delivery (``acknowledge``).
+
+A mixin of ``TeamMember``: the state it reads and writes is the member's (``mapping.team.member``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from mapping.pointcloud import voxel_downsample
+from mapping.team.messages import InstancePayload, ParameterMessage, PointCloudMessage, RayMessage
+
+
+class Outbox:
+    """Message building and delivery bookkeeping of a ``TeamMember``."""
+
+    def parameter_message(self, receiver: int, round_index: int, degree: int) -> ParameterMessage:
+        """This agent's instances for ``receiver`` (what changed-only sending skips, clouds the first time
+        or after they doubled); what the receiver holds is booked only on ``acknowledge``."""
+        ex = self.config.exchange
+        sent = dict(self.sent_vectors.get(receiver, {}))
+        clouds = dict(self.sent_cloud_points.get(receiver, {}))
+        payloads = []
+        for iid in self.mapper.live_ids():
+            if not ex.forward_adopted and not self.mapper.keyframes.has_pixels(iid):
+                continue
+            inst = self.mapper.export_instance(iid)
+            last = sent.get(iid)
+            if ex.changed_only is not None and last is not None and iid in clouds and (
+                    np.linalg.norm(inst.params - last) <= ex.changed_only * max(np.linalg.norm(last), 1e-12)):
+                continue
+            fused = None if self.config.global_map else self.fusion.instances.get(iid)
+            cloud = None
+            if fused is not None and len(fused.points) and (
+                    iid not in clouds or len(fused.points) >= ex.resend_cloud_growth * clouds[iid]):
+                cloud = voxel_downsample(fused.points, ex.cloud_voxel_m).astype(np.float32)
+                clouds[iid] = len(fused.points)
+            entry = self.entry(iid)
+            dtype = np.float16 if ex.float16 else np.float32
+            payloads.append(InstancePayload(
+                iid, inst.bank, inst.params.astype(dtype), inst.bound_lo.astype(np.float32),
+                inst.bound_hi.astype(np.float32), np.asarray(inst.frame.centre, np.float32), inst.frame.half,
+                inst.frame.origin, inst.frame.version, entry.caption, entry.caption_feature.astype(dtype),
+                entry.confidence, cloud))
+            sent[iid] = inst.params
+        self._unacknowledged[receiver] = (sent, clouds)
+        return ParameterMessage(self.index, receiver, round_index, payloads, degree)
+
+    def acknowledge(self, receiver: int, delivered: bool) -> None:
+        """The link told the sender whether its parameter message reached ``receiver`` (an
+        acknowledgement, not counted in bytes). Only a delivered message changes what this agent
+        believes the receiver holds: a lost first message with an instance's cloud is sent again with
+        its cloud next time, and changed-only sending compares with what really arrived."""
+        booked = self._unacknowledged.pop(receiver, None)
+        if delivered and booked is not None:
+            self.sent_vectors[receiver], self.sent_cloud_points[receiver] = booked
+
+    def point_cloud_message(self, receiver: int, round_index: int) -> PointCloudMessage:
+        """Every point this agent has observed so far (its fused instances' clouds), down-sampled."""
+        clouds = [inst.points for inst in self.fusion.instances.values() if len(inst.points)]
+        points = np.concatenate(clouds) if clouds else np.zeros((0, 3))
+        voxel = self.config.exchange.cloud_voxel_m
+        points = voxel_downsample(points, voxel) if len(points) else points
+        return PointCloudMessage(self.index, receiver, round_index, np.asarray(points, np.float32))
+
+    def ray_message(self, receiver: int, round_index: int, seed: int) -> RayMessage | None:
+        """The poses of this round's frames (at most ``poses_per_message``) and a pixel seed."""
+        if self.max_frame_read < 0:
+            return None
+        c = self.config.consistency
+        first = max(0, self.next_frame - self.config.frames_per_round)
+        if c.ray_poses == "mapped" and first > 0:  # views this agent has trained on for a round or more
+            picks = np.unique(np.random.default_rng([seed, 7]).choice(first, size=min(c.poses_per_message, first),
+                                                                       replace=False))
+        else:
+            picks = np.unique(np.linspace(first, self.next_frame - 1, c.poses_per_message).round().astype(int))
+        frames = [self.stream.read(int(i))[0] for i in picks]
+        k = frames[0].intrinsics
+        return RayMessage(self.index, receiver, round_index, np.stack([f.pose for f in frames]).astype(np.float32),
+                          (k.fx, k.fy, k.cx, k.cy, k.width, k.height), seed, c.rays_per_pose)
