@@ -34,7 +34,7 @@ armchairs) for placing ``pillow`` objects; ordinary ``supports`` never include s
 The builders live in one module per family, beside the helpers they share:
 
 * ``base``          the dataclasses (:class:`FurnitureModel`, :class:`SupportSurface`, the builders'
-                    ``_Spec``) and the helpers of more than one family (legs, door and drawer fronts,
+                    ``FurnitureSpec``) and the helpers of more than one family (legs, door and drawer fronts,
                     cabinet carcass, support rectangles);
 * ``seating``       chair, stool, sofa, armchair;
 * ``tables``        table, coffee table, desk;
@@ -56,28 +56,28 @@ from typing import Callable
 
 import numpy as np
 
-from openmulti_env.world.furniture.base import MARGIN, FurnitureModel, SupportSurface, _Spec
-from openmulti_env.world.furniture.beds import _bed
-from openmulti_env.world.furniture.electronics import _keyboard, _laptop, _monitor, _tv
-from openmulti_env.world.furniture.fixtures import _door, _picture, _rug, _window_frame
-from openmulti_env.world.furniture.lighting import _lamp, _table_lamp
-from openmulti_env.world.furniture.plants import _plant, _potted_plant
-from openmulti_env.world.furniture.seating import _armchair, _chair, _sofa, _stool
-from openmulti_env.world.furniture.small_objects import _book, _bottle, _box, _mug, _pillow, _trash_bin, _vase
-from openmulti_env.world.furniture.storage import _bookshelf, _cabinet, _nightstand, _wardrobe
-from openmulti_env.world.furniture.tables import _coffee_table, _desk, _table
+from openmulti_env.world.furniture.base import MARGIN, FurnitureModel, SupportSurface, FurnitureSpec
+from openmulti_env.world.furniture.beds import build_bed
+from openmulti_env.world.furniture.electronics import build_keyboard, build_laptop, build_monitor, build_tv
+from openmulti_env.world.furniture.fixtures import build_door, build_picture, build_rug, build_window_frame
+from openmulti_env.world.furniture.lighting import build_lamp, build_table_lamp
+from openmulti_env.world.furniture.plants import build_plant, build_potted_plant
+from openmulti_env.world.furniture.seating import build_armchair, build_chair, build_sofa, build_stool
+from openmulti_env.world.furniture.small_objects import build_book, build_bottle, build_box, build_mug, build_pillow, build_trash_bin, build_vase
+from openmulti_env.world.furniture.storage import build_bookshelf, build_cabinet, build_nightstand, build_wardrobe
+from openmulti_env.world.furniture.tables import build_coffee_table, build_desk, build_table
 from openmulti_env.world.furniture_parts import concat
 
 __all__ = ["CATEGORIES", "MARGIN", "SMALL_CATEGORIES", "FurnitureModel", "SupportSurface", "build_furniture"]
 
-_BUILDERS: dict[str, Callable[[np.random.Generator], _Spec]] = {
-    "chair": _chair, "armchair": _armchair, "sofa": _sofa, "stool": _stool,
-    "table": _table, "coffee_table": _coffee_table, "desk": _desk,
-    "bed": _bed, "nightstand": _nightstand, "cabinet": _cabinet, "wardrobe": _wardrobe, "bookshelf": _bookshelf,
-    "lamp": _lamp, "plant": _plant, "tv": _tv, "rug": _rug, "trash_bin": _trash_bin, "box": _box,
-    "door": _door, "window_frame": _window_frame, "picture": _picture,
-    "table_lamp": _table_lamp, "potted_plant": _potted_plant, "monitor": _monitor, "keyboard": _keyboard,
-    "laptop": _laptop, "mug": _mug, "bottle": _bottle, "book": _book, "pillow": _pillow, "vase": _vase,
+_BUILDERS: dict[str, Callable[[np.random.Generator], FurnitureSpec]] = {
+    "chair": build_chair, "armchair": build_armchair, "sofa": build_sofa, "stool": build_stool,
+    "table": build_table, "coffee_table": build_coffee_table, "desk": build_desk,
+    "bed": build_bed, "nightstand": build_nightstand, "cabinet": build_cabinet, "wardrobe": build_wardrobe, "bookshelf": build_bookshelf,
+    "lamp": build_lamp, "plant": build_plant, "tv": build_tv, "rug": build_rug, "trash_bin": build_trash_bin, "box": build_box,
+    "door": build_door, "window_frame": build_window_frame, "picture": build_picture,
+    "table_lamp": build_table_lamp, "potted_plant": build_potted_plant, "monitor": build_monitor, "keyboard": build_keyboard,
+    "laptop": build_laptop, "mug": build_mug, "bottle": build_bottle, "book": build_book, "pillow": build_pillow, "vase": build_vase,
 }
 
 _PLACEMENT: dict[str, str] = {

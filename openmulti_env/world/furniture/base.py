@@ -40,7 +40,7 @@ class FurnitureModel:
 
 
 @dataclass
-class _Spec:
+class FurnitureSpec:
     parts: list
     color: tuple
     color_name: str
@@ -52,18 +52,18 @@ class _Spec:
     variant: str = ""
 
 
-def _u(rng: np.random.Generator, lo: float, hi: float) -> float:
+def uniform(rng: np.random.Generator, lo: float, hi: float) -> float:
     return float(rng.uniform(lo, hi))
 
 
-def _surface(z: float, x0: float, x1: float, y0: float, y1: float, clearance: float = 1.0,
+def support_surface(z: float, x0: float, x1: float, y0: float, y1: float, clearance: float = 1.0,
              margin: float = MARGIN) -> SupportSurface:
     """Support for the physical rectangle [x0,x1]x[y0,y1] at height z, shrunk by ``margin``."""
     return SupportSurface(float(z), (float((x1 - x0) / 2 - margin), float((y1 - y0) / 2 - margin)),
                           (float((x0 + x1) / 2), float((y0 + y1) / 2)), float(clearance))
 
 
-def _front_panels(parts: list, rects, y_front: float, color, handle_color, rng,
+def front_panels(parts: list, rects, y_front: float, color, handle_color, rng,
                   handle: str = "bar", gap: float = 0.004) -> None:
     """Doors/drawer fronts on the +y face at ``y_front``: a dark seam backing plus one slightly
     proud panel per rect ``(x0, x1, z0, z1, kind)`` with kind 'drawer', 'door_l' (hinge left,
@@ -96,7 +96,7 @@ def _front_panels(parts: list, rects, y_front: float, color, handle_color, rng,
             parts.append(box(0.012, 0.02, L, hx, yh + 0.01, hz - L / 2, handle_color))
 
 
-def _door_rects(x0, x1, z0, z1, n):
+def door_rects(x0, x1, z0, z1, n):
     w = (x1 - x0) / n
     rects = []
     for i in range(n):
@@ -107,7 +107,7 @@ def _door_rects(x0, x1, z0, z1, n):
     return rects
 
 
-def _legs(parts, xs, ys, z0, z1, color, round_r: float = 0.0, square: float = 0.04) -> None:
+def table_legs(parts, xs, ys, z0, z1, color, round_r: float = 0.0, square: float = 0.04) -> None:
     for x in xs:
         for y in ys:
             if round_r > 0:
@@ -116,17 +116,17 @@ def _legs(parts, xs, ys, z0, z1, color, round_r: float = 0.0, square: float = 0.
                 parts.append(box(square, square, z1 - z0, x, y, z0, color))
 
 
-def _carcass(rng, W, D, H, col, base: str):
+def carcass_parts(rng, W, D, H, col, base: str):
     """Box body with top board and plinth/legs; returns (parts, body_z0, top_z, top_rect)."""
     parts = []
-    top_t = _u(rng, 0.018, 0.03)
-    ov = _u(rng, 0.0, 0.015)
+    top_t = uniform(rng, 0.018, 0.03)
+    ov = uniform(rng, 0.0, 0.015)
     if base == "legs":
-        bh = _u(rng, 0.08, 0.16)
-        _legs(parts, (-W / 2 + 0.04, W / 2 - 0.04), (-D / 2 + 0.04, D / 2 - 0.04), 0, bh + 0.001, shade(col, 0.6),
+        bh = uniform(rng, 0.08, 0.16)
+        table_legs(parts, (-W / 2 + 0.04, W / 2 - 0.04), (-D / 2 + 0.04, D / 2 - 0.04), 0, bh + 0.001, shade(col, 0.6),
               0.015 if rng.random() < 0.5 else 0.0, 0.035)
     elif base == "plinth":
-        bh = _u(rng, 0.05, 0.1)
+        bh = uniform(rng, 0.05, 0.1)
         parts.append(box(W - 0.04, D - 0.04, bh + 0.001, 0, -0.02, 0, shade(col, 0.6)))
     else:
         bh = 0.0

@@ -2,23 +2,23 @@
 
 from __future__ import annotations
 
-from openmulti_env.world.furniture.base import _Spec, _u
+from openmulti_env.world.furniture.base import FurnitureSpec, uniform
 from openmulti_env.world.furniture_parts import (
     FOLIAGE, PALETTE, box, caption, choice, jitter, material_color, pick_color, rod, shade,
 )
 
 
-def _rug(rng):
+def build_rug(rng):
     material = choice(rng, ("wool", "fabric", "jute"), (0.5, 0.3, 0.2))
     cname, col = material_color(rng, material)
-    W, L, h = _u(rng, 1.2, 3.0), _u(rng, 0.8, 2.2), 0.01
+    W, L, h = uniform(rng, 1.2, 3.0), uniform(rng, 0.8, 2.2), 0.01
     style = choice(rng, ("plain", "bordered", "striped"), (0.3, 0.4, 0.3))
     parts = []
     _, acc = pick_color(rng, ("cream", "beige", "navy blue", "dark red", "charcoal", "white", "mustard yellow", "teal"))
     if style == "plain":
         parts.append(box(W, L, h, 0, 0, 0, col))
     elif style == "bordered":
-        b = _u(rng, 0.06, 0.15)
+        b = uniform(rng, 0.06, 0.15)
         parts.append(box(W - 2 * b, L - 2 * b, h, 0, 0, 0, col))
         parts.append(box(W, b, h, 0, L / 2 - b / 2, 0, acc))
         parts.append(box(W, b, h, 0, -L / 2 + b / 2, 0, acc))
@@ -31,16 +31,16 @@ def _rug(rng):
     size = "large" if W * L > 3.0 else "small"
     caps = ("a {sz} {c} {m} rug", "a {c} {m} area rug{st}", "a {st2}{c} {m} carpet on the floor")
     st = {"plain": "", "bordered": " with a border", "striped": " with stripes"}[style]
-    return _Spec(parts, col, cname, material,
+    return FurnitureSpec(parts, col, cname, material,
                  caption(rng, caps, c=cname, m=material, sz=size, st=st, st2="striped " if style == "striped" else ""),
                  variant=style)
 
 
-def _door(rng):
+def build_door(rng):
     material = choice(rng, ("wooden", "metal"), (0.85, 0.15))
     cname, col = material_color(rng, material)
-    W, H, t = _u(rng, 0.8, 0.95), _u(rng, 1.98, 2.1), 0.04
-    cw, cd = _u(rng, 0.06, 0.1), t + 0.012
+    W, H, t = uniform(rng, 0.8, 0.95), uniform(rng, 1.98, 2.1), 0.04
+    cw, cd = uniform(rng, 0.06, 0.1), t + 0.012
     ccol = shade(col, 0.9) if rng.random() < 0.5 else jitter(PALETTE["white"], rng, 0.02)
     y0 = 0.0  # back plane (touches the wall)
     parts = [box(W, t, H, 0, y0 + t / 2, 0, col)]
@@ -65,19 +65,19 @@ def _door(rng):
     caps = ("a {c} {m} door", "a {st} {m} interior door in {c}",
             "a {c} {m} door with a {h} handle")
     hname = "silver" if hcol[2] > 0.5 and hcol[0] > 0.5 else ("gold" if hcol[0] > 0.5 else "black")
-    return _Spec(parts, col, cname, material, caption(rng, caps, c=cname, m=material, st=style, h=hname),
+    return FurnitureSpec(parts, col, cname, material, caption(rng, caps, c=cname, m=material, st=style, h=hname),
                  mount_height_m=0.0, variant=style)
 
 
-def _window_frame(rng):
+def build_window_frame(rng):
     material = choice(rng, ("wooden", "plastic", "metal"), (0.4, 0.35, 0.25))
     if material == "plastic":
         cname, col = pick_color(rng, ("white", "off-white", "dark grey"))
     else:
         cname, col = material_color(rng, material)
-    W, H = _u(rng, 0.8, 1.6), _u(rng, 0.9, 1.4)
-    fb, fd = _u(rng, 0.05, 0.08), _u(rng, 0.06, 0.1)
-    sill_t, sill_d = 0.03, fd + _u(rng, 0.04, 0.09)
+    W, H = uniform(rng, 0.8, 1.6), uniform(rng, 0.9, 1.4)
+    fb, fd = uniform(rng, 0.05, 0.08), uniform(rng, 0.06, 0.1)
+    sill_t, sill_d = 0.03, fd + uniform(rng, 0.04, 0.09)
     parts = [box(W + 0.1, sill_d, sill_t, 0, sill_d / 2, 0, shade(col, 0.95))]
     z0 = sill_t
     parts.append(box(W, fd, fb, 0, fd / 2, z0, col))
@@ -97,44 +97,44 @@ def _window_frame(rng):
     parts.append(box(W - 2 * fb + 0.01, 0.006, H - 2 * fb + 0.01, 0, fd * 0.3, z0 + fb - 0.005, glass))
     panes = (n_v + 1) * (2 if transom else 1)
     caps = ("a {c} {m} window frame", "a window with a {c} {m} frame", "a {c} {m} {p}-pane window")
-    return _Spec(parts, col, cname, material, caption(rng, caps, c=cname, m=material, p=panes),
-                 mount_height_m=_u(rng, 0.8, 1.0), variant=f"{panes}-pane")
+    return FurnitureSpec(parts, col, cname, material, caption(rng, caps, c=cname, m=material, p=panes),
+                 mount_height_m=uniform(rng, 0.8, 1.0), variant=f"{panes}-pane")
 
 
-def _picture(rng):
+def build_picture(rng):
     material = choice(rng, ("wooden", "metal"), (0.7, 0.3))
     cname, col = material_color(rng, material) if material == "wooden" else pick_color(rng, ("black", "silver", "gold", "white"))
-    W, H = _u(rng, 0.3, 1.0), _u(rng, 0.3, 0.9)
-    fb, fd = _u(rng, 0.02, 0.06), _u(rng, 0.02, 0.04)
+    W, H = uniform(rng, 0.3, 1.0), uniform(rng, 0.3, 0.9)
+    fb, fd = uniform(rng, 0.02, 0.06), uniform(rng, 0.02, 0.04)
     parts = [box(W, fd, fb, 0, fd / 2, 0, col), box(W, fd, fb, 0, fd / 2, H - fb, col),
              box(fb, fd, H - 2 * fb, -W / 2 + fb / 2, fd / 2, fb, col),
              box(fb, fd, H - 2 * fb, W / 2 - fb / 2, fd / 2, fb, col)]
     cd = fd * 0.6
-    mat_w = _u(rng, 0.03, 0.08) if rng.random() < 0.5 else 0.0
+    mat_w = uniform(rng, 0.03, 0.08) if rng.random() < 0.5 else 0.0
     parts.append(box(W - 2 * fb + 0.004, cd, H - 2 * fb + 0.004, 0, cd / 2, fb - 0.002, jitter(PALETTE["off-white"], rng, 0.02)))
     ix0, ix1 = -W / 2 + fb + mat_w, W / 2 - fb - mat_w
     iz0, iz1 = fb + mat_w, H - fb - mat_w
     art = choice(rng, ("landscape", "abstract"))
     yc = cd + 0.001
     if art == "landscape":
-        zh = iz0 + (iz1 - iz0) * _u(rng, 0.3, 0.55)
+        zh = iz0 + (iz1 - iz0) * uniform(rng, 0.3, 0.55)
         parts.append(box(ix1 - ix0, 0.002, iz1 - zh, (ix0 + ix1) / 2, yc, zh, jitter((0.55, 0.72, 0.88), rng, 0.05)))
         parts.append(box(ix1 - ix0, 0.002, zh - iz0, (ix0 + ix1) / 2, yc, iz0, jitter(FOLIAGE[int(rng.integers(4))], rng, 0.08)))
         sr = min(ix1 - ix0, iz1 - zh) * 0.12
-        sx = _u(rng, ix0 + 2 * sr, ix1 - 2 * sr)
+        sx = uniform(rng, ix0 + 2 * sr, ix1 - 2 * sr)
         parts.append(rod((sx, yc + 0.001, zh + (iz1 - zh) * 0.65), (sx, yc + 0.003, zh + (iz1 - zh) * 0.65), sr,
                          jitter(PALETTE["yellow"], rng), 12))
     else:
         parts.append(box(ix1 - ix0, 0.002, iz1 - iz0, (ix0 + ix1) / 2, yc, iz0, jitter(PALETTE[choice(rng, ("cream", "white", "beige", "light grey"))], rng)))
         for k in range(int(rng.integers(2, 5))):
-            bw, bh = (ix1 - ix0) * _u(rng, 0.15, 0.5), (iz1 - iz0) * _u(rng, 0.15, 0.5)
-            x = _u(rng, ix0 + bw / 2, ix1 - bw / 2)
-            z = _u(rng, iz0, iz1 - bh)
+            bw, bh = (ix1 - ix0) * uniform(rng, 0.15, 0.5), (iz1 - iz0) * uniform(rng, 0.15, 0.5)
+            x = uniform(rng, ix0 + bw / 2, ix1 - bw / 2)
+            z = uniform(rng, iz0, iz1 - bh)
             c = PALETTE[choice(rng, ("red", "blue", "yellow", "teal", "orange", "black", "navy blue", "pink"))]
             parts.append(box(bw, 0.002, bh, x, yc + 0.0015 * (k + 1), z, jitter(c, rng)))
-    centre = _u(rng, 1.45, 1.65)
+    centre = uniform(rng, 1.45, 1.65)
     caps = ("a framed {a} picture with a {c} {m} frame", "a {a} painting in a {c} {m} frame",
             "a {c} {m} picture frame holding {aa} {a} print")
-    return _Spec(parts, col, cname, material,
+    return FurnitureSpec(parts, col, cname, material,
                  caption(rng, caps, c=cname, m=material, a=art, aa="a" if art == "landscape" else "an"),
                  mount_height_m=max(0.9, centre - H / 2), variant=art)
