@@ -114,7 +114,7 @@ def run_team(source: Source, record: SourceRecord, config: RunConfig, schedule: 
     gt = source.ground_truth(config.seed)
     scores = evaluate_team(source, record, gt, team, config)
     result = RunResult(**scores, **round_costs(team, reports), wall_s=time.perf_counter() - start,
-                       config={**record.settings, "team": plain(asdict(config.team))},
+                       config={**record.settings, **record.described, "team": plain(asdict(config.team))},
                        notes=" ".join(record.notes + [METRICS_NOTE.format(culling=gt.culling_note)]),
                        extra=record.results)
     write_outputs(out, result, reports, config)

@@ -82,6 +82,10 @@ class SourceRecord:
 
     settings: dict
     results: dict = field(default_factory=dict)
+    """Extra fields of ``metrics.json`` (e.g. ``map``, ``ground_truth``)."""
     notes: list[str] = field(default_factory=list)
     caption: Callable[[int, str], str] | None = None
     """Renames the captions written in the code books (``caption(id, caption)``), e.g. geometric segments."""
+    described: dict = field(default_factory=dict)
+    """Written in ``metrics.json``'s ``config`` beside ``settings``, outside the checkpoints' key (values
+    that follow from the settings, e.g. the error rates)."""

@@ -91,19 +91,15 @@ def run(scene: str, agents: int, policy: str, preset: str, seed: int, out: Path,
     team = run_team_config(chosen, alignment, consistency, cross_rendering, float16, changed_only, mapping=mapping,
                            global_map=global_map, share_point_clouds=share_point_clouds)
     errors = SegmentationErrorConfig() if segmentation_errors else SegmentationErrorConfig.none()
-    # the checkpoint key holds the settings only (the error rates follow from them)
-    record = SourceRecord(settings, {"map": map_info})
+    record = SourceRecord(settings, {"map": map_info}, described={"error_rates": asdict(errors)})
     config = RunConfig(Path(out), team, team_channel(scripted, comm_budget_mb), seed=seed, device=device,
                        workers=workers, threads=threads, checkpoint_every=checkpoint_every, max_rounds=max_rounds,
                        three_cullings=three_cullings, plots=plots, progress=progress,
                        title=f"{world.scene.name}: policy {policy}")
     try:
-        result = run_team(source, record, config, scripted_schedule(scripted), start=start)
+        return run_team(source, record, config, scripted_schedule(scripted), start=start).as_json()
     finally:
         world.close()
-    metrics = result.as_json()
-    metrics["config"] = {**settings, "error_rates": asdict(errors), "team": metrics["config"]["team"]}
-    return metrics
 
 
 def run_data(data: str | Path, agents: int, policy: str, preset: str, seed: int, out: Path, *, kind: str = "auto",
