@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import time
 import warnings
-from dataclasses import asdict, replace
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import torch
@@ -67,13 +67,9 @@ def run(scene: str, agents: int, policy: str, preset: str, seed: int, out: Path,
             ``threads`` is not given (each with 1 torch thread: small batches use one core better than
             two), else 1.
     """
-    chosen = get_preset(preset)
-    scripted = team_policy(policy, agents, alignment, consistency, comm_budget_mb)
-    workers = team_workers(agents, threads, workers)
-    set_threads(threads, workers=workers)
-    start = time.perf_counter()
-    torch.manual_seed(seed)
-    image_encoder = image_encoder_said_once(clip_checkpoint)
+    begun = begin_run(preset, policy, agents, alignment, consistency, comm_budget_mb, threads, workers, seed,
+                      clip_checkpoint)
+    chosen, scripted, workers, image_encoder = begun.preset, begun.policy, begun.workers, begun.image_encoder
     world = World.build(scene, seed=seed, config=chosen.world_config(agents))
     settings = {"scene": scene, "agents": agents, "policy": policy, "preset": preset, "seed": seed,
                 "alignment": alignment, "segmentation_errors": segmentation_errors, "clip_checkpoint": clip_checkpoint,
@@ -97,7 +93,7 @@ def run(scene: str, agents: int, policy: str, preset: str, seed: int, out: Path,
                        three_cullings=three_cullings, plots=plots, progress=progress,
                        title=f"{world.scene.name}: policy {policy}")
     try:
-        return run_team(source, record, config, scripted_schedule(scripted), start=start).as_json()
+        return run_team(source, record, config, scripted_schedule(scripted), start=begun.start).as_json()
     finally:
         world.close()
 
@@ -117,13 +113,9 @@ def run_data(data: str | Path, agents: int, policy: str, preset: str, seed: int,
         kind, gt_mesh, frames, intrinsics, depth_scale: see ``openmulti run --help``.
         the rest: as ``run``.
     """
-    chosen = get_preset(preset)
-    scripted = team_policy(policy, agents, alignment, consistency, comm_budget_mb)
-    workers = team_workers(agents, threads, workers)
-    set_threads(threads, workers=workers)
-    start = time.perf_counter()
-    torch.manual_seed(seed)
-    image_encoder = image_encoder_said_once(clip_checkpoint)
+    begun = begin_run(preset, policy, agents, alignment, consistency, comm_budget_mb, threads, workers, seed,
+                      clip_checkpoint)
+    chosen, scripted, workers, image_encoder = begun.preset, begun.policy, begun.workers, begun.image_encoder
     encoder = shared_text_encoder(name=chosen.text_encoder)
     inputs = prepare_inputs(data, kind, agents, frames, intrinsics, depth_scale, gt_mesh, encoder, image_encoder,
                             culling_edge_m=chosen.culling_edge_m, seed=seed, progress=progress)
@@ -139,7 +131,31 @@ def run_data(data: str | Path, agents: int, policy: str, preset: str, seed: int,
     config = RunConfig(Path(out), team, team_channel(scripted, comm_budget_mb), seed=seed, device=device,
                        workers=workers, threads=threads, checkpoint_every=checkpoint_every, max_rounds=max_rounds,
                        progress=progress, title=f"{inputs.name}: policy {policy}")
-    return run_team(source, record, config, scripted_schedule(scripted), start=start).as_json()
+    return run_team(source, record, config, scripted_schedule(scripted), start=begun.start).as_json()
+
+
+@dataclass
+class RunStart:
+    """What every run settles first: its preset, policy, worker threads, clock and image encoder."""
+
+    preset: Preset
+    policy: ScriptedPolicy
+    workers: int
+    start: float
+    image_encoder: object | None
+
+
+def begin_run(preset: str, policy: str, agents: int, alignment: str, consistency: str, comm_budget_mb: float | None,
+              threads: int | None, workers: int | None, seed: int, clip_checkpoint: str | None) -> RunStart:
+    """Check the options (ValueError naming the problem), set the threads, start the clock, seed torch and
+    load the optional image encoder, in that order (the order the runs' figures were made in)."""
+    chosen = get_preset(preset)
+    scripted = team_policy(policy, agents, alignment, consistency, comm_budget_mb)
+    workers = team_workers(agents, threads, workers)
+    set_threads(threads, workers=workers)
+    start = time.perf_counter()
+    torch.manual_seed(seed)
+    return RunStart(chosen, scripted, workers, start, image_encoder_said_once(clip_checkpoint))
 
 
 def team_policy(policy: str, agents: int, alignment: str, consistency: str,
