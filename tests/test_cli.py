@@ -22,7 +22,7 @@ def test_scenes_json_describes_instances_and_coverage(capsys, tmp_path):
 
 
 def test_cli_constants_agree_with_the_modules_they_stand_for():
-    from openmulti_env import cli
+    from openmulti_env.runs import cli
     from openmulti_env.presets import PRESET_NAMES as RUN_PRESETS
     from openmulti_env.world.world import MAX_AGENTS
 

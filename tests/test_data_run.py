@@ -72,7 +72,7 @@ def test_replica_team_always_writes_the_run_contract_and_answers_queries(tmp_pat
 
 
 def test_bernoulli_team_run_interrupted_after_a_round_resumes(tmp_path, capsys, monkeypatch):
-    import mapping.pipeline.run_team as pipeline
+    import mapping.pipeline.runner as pipeline
 
     out, mesh = tmp_path / "lossy", str(REPLICA / "mesh.ply")
 

@@ -1,7 +1,7 @@
 """What a run maps: a ``Source`` gives the agents' frame streams, the vocabulary, the ground truth (or a
 reference) to score against, and the sensor views for pictures. The simulator
 (``openmulti_env.runs.sim_source``) and real data sets (``mapping.data.source``) are both sources, so one
-pipeline (``mapping.pipeline.run_team``) runs, scores and writes every run.
+pipeline (``mapping.pipeline.runner``) runs, scores and writes every run.
 """
 
 from __future__ import annotations

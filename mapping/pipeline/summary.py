@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from mapping.pipeline.run_team import RunResult
+from mapping.pipeline.runner import RunResult
 
 
 def _fmt(x: float | None) -> str:

@@ -104,7 +104,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     """The main job: the team maps the scene (or ``--data``) round by round under the policy; prints a
     results table."""
     from mapping.pipeline.summary import results_table  # noqa: PLC0415
-    from mapping.pipeline.run_team import RunResult  # noqa: PLC0415
+    from mapping.pipeline.runner import RunResult  # noqa: PLC0415
     from openmulti_env.runs.run import run, run_data  # noqa: PLC0415
 
     policy = check_policy(args.policy)

@@ -1,6 +1,6 @@
 """``openmulti run``: a team maps the simulated world (``run``) or a real RGB-D data set (``run_data``)
 round by round under a scripted communication policy, through the one pipeline
-(``mapping.pipeline.run_team``). This module turns command-line options into a source, the team
+(``mapping.pipeline.runner``). This module turns command-line options into a source, the team
 settings of a preset (``openmulti_env.presets``) and a schedule.
 """
 
