@@ -35,7 +35,8 @@ from mapping.perception import shared_text_encoder
 from mapping.perception.errors import SegmentationErrorConfig
 from openmulti_env.presets import world_config
 from mapping.pipeline.records import write_json_atomic
-from openmulti_env.team_perception import FrontEndConfig, category_vocabulary, perceive_team, semantic_ground_truth
+from openmulti_env.team_perception import FrontEndConfig, perceive_team
+from openmulti_env.world.semantics import category_vocabulary, semantic_ground_truth
 from openmulti_env.world import World
 
 PRESETS = ("room0", "room1", "room2", "office0", "office1", "office2", "office3", "office4")

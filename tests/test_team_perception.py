@@ -9,7 +9,8 @@ from scipy.spatial import cKDTree
 from mapping.alignment import align_team, labelled_points
 from mapping.evaluate.semantic import score_semantics
 from mapping.perception.errors import SegmentationErrorConfig
-from openmulti_env.team_perception import FrontEndConfig, category_vocabulary, perceive_team, semantic_ground_truth
+from openmulti_env.team_perception import FrontEndConfig, perceive_team
+from openmulti_env.world.semantics import category_vocabulary, semantic_ground_truth
 
 
 @pytest.fixture(scope="module")
