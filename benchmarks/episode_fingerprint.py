@@ -58,7 +58,7 @@ def episode_fingerprint(preset: str, seed: int, action_seed: int, **overrides) -
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--preset", default="tiny", help="env preset (default: tiny)")
+    parser.add_argument("--preset", default="rl_tiny", help="env preset (default: rl_tiny)")
     parser.add_argument("--seed", type=int, default=11, help="episode seed given to reset (default: 11)")
     parser.add_argument("--action-seed", type=int, default=2, help="seed of the random actions (default: 2)")
     parser.add_argument("--json", help="also write the fingerprint to this JSON file")
