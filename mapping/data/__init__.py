@@ -1,6 +1,6 @@
 """Frames and per-agent sequences; loaders for Replica (vMAP and NICE-SLAM layouts) and ScanNet."""
 
-from mapping.data._io import DatasetError, DatasetWarning
+from mapping.data.files import DatasetError, DatasetWarning
 from mapping.data.frame import (AgentSequence, Frame, Intrinsics, backproject_depth, backproject_pixels,
                                 split_contiguous)
 from mapping.data.dataset import LazyFrames, RGBDDataset

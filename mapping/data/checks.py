@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mapping.data._io import DatasetWarning
+from mapping.data.files import DatasetWarning
 from mapping.data.frame import Frame, backproject_depth
 
 PLAUSIBLE_MEDIAN_DEPTH_M = (0.2, 15.0)

@@ -17,7 +17,7 @@ from typing import TypeVar, overload
 
 import numpy as np
 
-from mapping.data._io import DatasetError, read_depth, read_labels, read_rgb
+from mapping.data.files import DatasetError, read_depth, read_labels, read_rgb
 from mapping.data.frame import AgentSequence, Frame, Intrinsics, split_contiguous
 
 T = TypeVar("T")

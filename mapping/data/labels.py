@@ -17,7 +17,7 @@ import csv
 import json
 from pathlib import Path
 
-from mapping.data._io import DatasetError
+from mapping.data.files import DatasetError
 
 REPLICA_LABEL_FILE = "info_semantic.json"
 SCANNET_LABEL_TABLE = "scannetv2-labels.combined.tsv"

@@ -10,7 +10,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from mapping.data._io import DatasetError
+from mapping.data.files import DatasetError
 from mapping.data.dataset import FrameFiles, LazyFrames, ReadSpec, RGBDDataset, check_depth_scale, select
 from mapping.data.replica import load_nice_slam, load_replica
 from mapping.data.scannet import load_scannet

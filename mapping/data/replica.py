@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from mapping.data._io import (
+from mapping.data.files import (
     DatasetError,
     as_intrinsics,
     check_pose,

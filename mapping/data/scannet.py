@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from mapping.data._io import (
+from mapping.data.files import (
     DatasetError,
     DatasetWarning,
     check_pose,
