@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+import struct
 from dataclasses import replace
 
 import numpy as np
@@ -49,6 +51,57 @@ def test_corrupt_messages_are_refused():
         from_bytes(b"junk" + data)
     with pytest.raises(MessageError, match="truncated"):
         from_bytes(data[:-10])
+
+
+def _rewrite_header(data: bytes, change) -> bytes:
+    """``data`` with its JSON header passed through ``change`` (what a faulty or hostile sender could send)."""
+    start = len(b"OMMSG") + 1
+    (n,) = struct.unpack("<I", data[start:start + 4])
+    header = change(json.loads(data[start + 4:start + 4 + n]))
+    blob = json.dumps(header).encode()
+    return data[:start] + struct.pack("<I", len(blob)) + blob + data[start + 4 + n:]
+
+
+def _set_array(name: str, field: int, value):
+    def change(header):
+        next(entry for entry in header["arrays"] if entry[0] == name)[field] = value
+        return header
+    return change
+
+
+@pytest.mark.parametrize("name, field, value, error", [
+    ("0.cloud", 2, [-1, 3], "0.cloud: shape \\[-1, 3\\] is not a list of non-negative integers"),
+    ("0.params", 1, "object", "0.params: dtype 'object' cannot travel"),
+    ("0.box", 2, [3, 3], "0.box: shape \\(3, 3\\), expected \\(9\\)"),
+    ("0.params", 3, -4, "0.params: offset -4"),
+])
+def test_malformed_messages_are_refused_naming_the_field(name, field, value, error):
+    data = to_bytes(ParameterMessage(0, 1, 0, [_payload(cloud=True)]))
+    with pytest.raises(MessageError, match=error):
+        from_bytes(_rewrite_header(data, _set_array(name, field, value)))
+
+
+def test_non_finite_parameters_and_bad_scalars_are_refused():
+    bad = _payload()
+    bad.params = bad.params.copy()
+    bad.params[0] = np.nan
+    with pytest.raises(MessageError, match="0.params: expected finite floats"):
+        from_bytes(to_bytes(ParameterMessage(0, 1, 0, [bad])))
+    data = to_bytes(ParameterMessage(0, 1, 0, [_payload()]))
+    with pytest.raises(MessageError, match="field sender"):
+        from_bytes(_rewrite_header(data, lambda h: {**h, "scalars": {**h["scalars"], "sender": "x"}}))
+    with pytest.raises(MessageError, match="poses: shape"):
+        rays = to_bytes(RayMessage(0, 1, 0, np.eye(4, dtype=np.float32)[None], (1.0, 1.0, 0.5, 0.5, 2, 2), 3, 4))
+        from_bytes(_rewrite_header(rays, _set_array("poses", 2, [2, 8])))
+
+
+def test_the_channel_counts_a_malformed_message_as_dropped_and_never_applies_it():
+    channel = Channel(2)
+    data = _rewrite_header(to_bytes(ParameterMessage(0, 1, 0, [_payload()])), _set_array("0.box", 2, [3, 3]))
+    with pytest.warns(UserWarning, match="refused: array 0.box"):
+        d = channel.transmit_bytes(0, 1, "params", data)
+    assert d.status == "dropped" and d.message is None
+    assert channel.bytes_sent[0] == len(data) and channel.bytes_received[1] == 0
 
 
 def test_channel_drops_by_probability_and_enforces_the_budget():

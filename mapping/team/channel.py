@@ -9,11 +9,12 @@ the same episode.
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
 
-from mapping.team.messages import Message, from_bytes, to_bytes
+from mapping.team.messages import Message, MessageError, from_bytes, to_bytes
 
 DELIVERED, DROPPED, OVER_BUDGET = "delivered", "dropped", "over_budget"
 
@@ -64,18 +65,27 @@ class Channel:
 
     def transmit(self, message: Message) -> Delivery:
         """Serialise, charge the sender, draw success, and decode on arrival."""
-        i, j = message.sender, message.receiver
+        return self.transmit_bytes(message.sender, message.receiver, message.kind, to_bytes(message))
+
+    def transmit_bytes(self, sender: int, receiver: int, kind: str, data: bytes) -> Delivery:
+        """``transmit`` for a message already serialised (e.g. by another process). Bytes that do not
+        decode (``MessageError``) cost their sender as sent and count as dropped: never applied."""
+        i, j = sender, receiver
         if not (0 <= i < self.num_agents and 0 <= j < self.num_agents) or i == j:
             raise ValueError(f"message from {i} to {j}: agents are 0..{self.num_agents - 1} and differ")
-        data = to_bytes(message)
         if len(data) > self.budget_left(i):
-            return Delivery(i, j, message.kind, OVER_BUDGET, 0, None)
+            return Delivery(i, j, kind, OVER_BUDGET, 0, None)
         self.bytes_sent[i] += len(data)
         self.link_bytes[i, j] += len(data)
         if self.rng.random() >= self.success[i, j]:
-            return Delivery(i, j, message.kind, DROPPED, len(data), None)
+            return Delivery(i, j, kind, DROPPED, len(data), None)
+        try:
+            message = from_bytes(data)
+        except MessageError as exc:
+            warnings.warn(f"message {kind} from agent_{i} to agent_{j} refused: {exc}", stacklevel=2)
+            return Delivery(i, j, kind, DROPPED, len(data), None)
         self.bytes_received[j] += len(data)
-        return Delivery(i, j, message.kind, DELIVERED, len(data), from_bytes(data))
+        return Delivery(i, j, kind, DELIVERED, len(data), message)
 
     def state(self) -> dict:
         return {"rng": self.rng.bit_generator.state, "bytes_sent": self.bytes_sent.tolist(),

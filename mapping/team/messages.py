@@ -131,25 +131,61 @@ def _pack(kind: str, scalars: dict, arrays: dict[str, np.ndarray]) -> bytes:
 
 
 def _unpack(data: bytes) -> tuple[str, dict, dict[str, np.ndarray]]:
+    """Header and arrays of ``data``; every table entry is checked before it is read, because a message
+    that crossed a process or a machine may be anything."""
     if len(data) < len(MAGIC) + 5 or not data.startswith(MAGIC):
         raise MessageError("not an OpenMulti message (bad magic)")
     if data[len(MAGIC)] != VERSION:
         raise MessageError(f"message version {data[len(MAGIC)]}, this code reads {VERSION}")
     start = len(MAGIC) + 1
     (n,) = struct.unpack("<I", data[start:start + 4])
+    if start + 4 + n > len(data):
+        raise MessageError(f"truncated message (header of {n} bytes)")
     try:
         header = json.loads(data[start + 4:start + 4 + n].decode())
     except (UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise MessageError(f"corrupt message header ({exc})") from None
+    if not (isinstance(header, dict) and isinstance(header.get("kind"), str)
+            and isinstance(header.get("scalars"), dict) and isinstance(header.get("arrays"), list)):
+        raise MessageError("corrupt message header (expected kind, scalars and arrays)")
     body = memoryview(data)[start + 4 + n:]
     arrays = {}
-    for name, dtype, shape, offset in header["arrays"]:
+    for entry in header["arrays"]:
+        if not (isinstance(entry, list) and len(entry) == 4 and isinstance(entry[0], str)):
+            raise MessageError(f"corrupt array entry {entry!r} (expected [name, dtype, shape, offset])")
+        name, dtype, shape, offset = entry
+        if dtype not in _DTYPES:
+            raise MessageError(f"array {name}: dtype {dtype!r} cannot travel (one of {sorted(_DTYPES)})")
+        if not (isinstance(shape, list) and all(_count(d) for d in shape)):
+            raise MessageError(f"array {name}: shape {shape!r} is not a list of non-negative integers")
+        if not _count(offset):
+            raise MessageError(f"array {name}: offset {offset!r} is not a non-negative integer")
         dt = np.dtype(dtype).newbyteorder("<")
-        size = int(np.prod(shape)) * dt.itemsize
+        size = int(np.prod(shape, dtype=np.int64)) * dt.itemsize
         if offset + size > len(body):
             raise MessageError(f"truncated message (array {name})")
         arrays[name] = np.frombuffer(body[offset:offset + size], dtype=dt).reshape(shape).astype(dtype)
     return header["kind"], header["scalars"], arrays
+
+
+def _count(value) -> bool:
+    """A JSON non-negative integer (bool is not one)."""
+    return isinstance(value, int) and not isinstance(value, bool) and value >= 0
+
+
+def _checked(arrays: dict[str, np.ndarray], name: str, shape: tuple[int | None, ...], floating: bool = True
+             ) -> np.ndarray:
+    """``arrays[name]`` if it has ``shape`` (None: any length) and, for floats, only finite values."""
+    if name not in arrays:
+        raise MessageError(f"array {name} is missing")
+    a = arrays[name]
+    if a.ndim != len(shape) or any(want is not None and got != want for got, want in zip(a.shape, shape)):
+        want = "(" + ", ".join("n" if w is None else str(w) for w in shape) + ")"
+        raise MessageError(f"array {name}: shape {a.shape}, expected {want}")
+    if floating and (a.dtype.kind != "f" or not np.all(np.isfinite(a))):
+        raise MessageError(f"array {name}: expected finite floats, got {a.dtype} "
+                           f"{'with non-finite values' if a.dtype.kind == 'f' else ''}".rstrip())
+    return a
 
 
 def to_bytes(message: Message) -> bytes:
@@ -177,24 +213,36 @@ def to_bytes(message: Message) -> bytes:
 
 
 def from_bytes(data: bytes) -> Message:
-    """Inverse of ``to_bytes`` (MessageError on anything else)."""
+    """Inverse of ``to_bytes``; anything else (truncated, corrupt, an array of the wrong shape or dtype,
+    non-finite values) raises MessageError naming the field, so nothing malformed is ever applied."""
     kind, s, a = _unpack(bytes(data))
     try:
+        base = (_int(s, "sender"), _int(s, "receiver"), _int(s, "round"))
         if kind == "rays":
             fx, fy, cx, cy, w, h = s["intrinsics"]
-            return RayMessage(s["sender"], s["receiver"], s["round"], a["poses"], (fx, fy, cx, cy, int(w), int(h)),
-                              s["seed"], s["rays_per_pose"])
+            return RayMessage(*base, _checked(a, "poses", (None, 4, 4)), (fx, fy, cx, cy, int(w), int(h)),
+                              _int(s, "seed"), _int(s, "rays_per_pose"))
         if kind == "points":
-            return PointCloudMessage(s["sender"], s["receiver"], s["round"], a["points"])
+            return PointCloudMessage(*base, _checked(a, "points", (None, 3)))
         if kind != "params":
             raise MessageError(f"unknown message kind {kind!r}")
         instances = []
         for k, meta in enumerate(s["instances"]):
-            box = a[f"{k}.box"]
-            instances.append(InstancePayload(meta["id"], meta["bank"], a[f"{k}.params"], box[:3], box[3:6], box[6:9],
-                                             meta["half"], meta["origin"], meta["version"], meta["caption"],
-                                             a[f"{k}.feature"], meta["confidence"],
-                                             a[f"{k}.cloud"] if meta["cloud"] else None))
-        return ParameterMessage(s["sender"], s["receiver"], s["round"], instances, s["degree"])
+            box = _checked(a, f"{k}.box", (9,))
+            cloud = _checked(a, f"{k}.cloud", (None, 3)) if meta["cloud"] else None
+            instances.append(InstancePayload(meta["id"], meta["bank"], _checked(a, f"{k}.params", (None,)),
+                                             box[:3], box[3:6], box[6:9], meta["half"], meta["origin"],
+                                             meta["version"], meta["caption"], _checked(a, f"{k}.feature", (None,)),
+                                             meta["confidence"], cloud))
+        return ParameterMessage(*base, instances, _int(s, "degree"))
     except (KeyError, ValueError, TypeError) as exc:
+        if isinstance(exc, MessageError):
+            raise
         raise MessageError(f"corrupt message body ({type(exc).__name__}: {exc})") from None
+
+
+def _int(scalars: dict, name: str) -> int:
+    """``scalars[name]`` if it is a non-negative integer."""
+    if not _count(scalars.get(name)):
+        raise MessageError(f"field {name}: {scalars.get(name)!r} is not a non-negative integer")
+    return scalars[name]
