@@ -34,6 +34,18 @@ def set_threads(threads: int | None = None, workers: int = 1) -> int:
 
 
 @contextmanager
+def torch_threads(threads: int | None = None, workers: int = 1) -> Iterator[int]:
+    """``set_threads`` inside the block, the caller's thread count again after it: a library called
+    from someone else's process (an env inside a trainer) keeps its thread setting to itself."""
+    before = torch.get_num_threads()
+    try:
+        yield set_threads(threads, workers)
+    finally:
+        if torch.get_num_threads() != before:
+            torch.set_num_threads(before)
+
+
+@contextmanager
 def flushed_denormals() -> Iterator[None]:
     """Flush denormal floats to zero (x86 SSE / ARM) inside the block: for training only.
 

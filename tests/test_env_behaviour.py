@@ -241,3 +241,19 @@ def test_world_cache_key_follows_a_manifests_meshes(tmp_path):
     assert before == world_cache_key(str(manifest), 0, config)
     trimesh.creation.box((0.6, 0.5, 0.5)).export(tmp_path / "box.obj")  # same manifest, another mesh
     assert world_cache_key(str(manifest), 0, config) != before
+
+
+def test_the_env_keeps_its_torch_threads_to_itself(cache):
+    """A trainer in the same process keeps its own thread count across reset and step."""
+    import torch
+
+    before = torch.get_num_threads()
+    torch.set_num_threads(3)
+    try:
+        e = parallel_env(preset="rl_tiny", cache_dir=cache, threads=1)
+        e.reset(seed=0)
+        assert torch.get_num_threads() == 3
+        e.step({a: e.action_space(a).sample() for a in e.agents})
+        assert torch.get_num_threads() == 3
+    finally:
+        torch.set_num_threads(before)

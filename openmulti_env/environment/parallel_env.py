@@ -90,7 +90,7 @@ from pettingzoo import ParallelEnv
 from pettingzoo.utils import parallel_to_aec, wrappers
 
 from mapping.perception import shared_text_encoder
-from mapping.runtime import set_threads
+from mapping.runtime import torch_threads
 from mapping.team import Team
 from openmulti_env.environment.actions import ActionError, actions_to_plan
 from openmulti_env.environment.config import EnvConfig, env_config
@@ -160,14 +160,18 @@ class OpenMultiParallelEnv(ParallelEnv, EzPickle):
 
     # ---- episode -------------------------------------------------------------------------------------
     def reset(self, seed: int | None = None, options: dict | None = None):
-        """A fresh team on the env's world; ``seed`` fixes the episode. ``options`` are not used."""
+        """A fresh team on the env's world; ``seed`` fixes the episode. ``options`` are not used. Torch
+        runs on ``threads`` threads inside reset and step only (the caller's setting is kept)."""
+        with torch_threads(self.config.threads):
+            return self._reset(seed)
+
+    def _reset(self, seed: int | None):
         start = time.perf_counter()
         if seed is not None:
             self._episode_rng, _ = seeding.np_random(seed)
         episode_seed = int(self._episode_rng.integers(2**31 - 1))
         self._build_world()
         cfg = self.config
-        set_threads(cfg.threads)
         encoder = shared_text_encoder(name=cfg.text_encoder, persist=True)
         streams = world_streams(self.world, episode_seed, cfg.segmentation_errors, text_encoder=encoder,
                                 render=self._frames.render)
@@ -212,6 +216,10 @@ class OpenMultiParallelEnv(ParallelEnv, EzPickle):
         self._frames = RenderCache(self.world, cfg.frame_cache_mb)
 
     def step(self, actions: dict):
+        with torch_threads(self.config.threads):
+            return self._step(actions)
+
+    def _step(self, actions: dict):
         if self.team is None:
             raise RuntimeError("call reset() before step()")
         if not self.agents:
