@@ -20,11 +20,12 @@ from mapping.bounds import InstanceBound
 from mapping.checkpoint import load_checkpoint, save_checkpoint
 from mapping.data import Frame, Intrinsics
 from mapping.evaluate import extract_instance_mesh, merge_instance_meshes
-from mapping.field import OBJECT_FIELD, STRUCTURE_FIELD, InstanceFieldBank, LiveRows, resolve_device
+from mapping.field import OBJECT_FIELD, STRUCTURE_FIELD, InstanceFieldBank, LiveRows
+from mapping.instance_frames import refit_frames
 from mapping.optim import AdamConfig, StackedAdam
 from mapping.keyframes import KeyframeBuffer
 from mapping.losses import DataLossWeights, data_loss
-from mapping.runtime import flushed_denormals
+from mapping.runtime import flushed_denormals, resolve_device
 from mapping.render import (CompositeConfig, CompositeRender, RayBundle, SamplerConfig, ray_aabb, render_image,
                             render_occupancy, sample_along_rays)
 
@@ -227,9 +228,9 @@ class MappingAgent:
             bank = self.banks[name]
             rows = [self.slots[i].row for i in ids]
             with flushed_denormals():
-                bank.refit_frames(rows, torch.tensor([frames[i].centre for i in ids]),
-                                  torch.tensor([frames[i].half for i in ids]), steps=self.config.refit_steps,
-                                  generator=self.generator)
+                refit_frames(bank, rows, torch.tensor([frames[i].centre for i in ids]),
+                             torch.tensor([frames[i].half for i in ids]), steps=self.config.refit_steps,
+                             generator=self.generator)
             self.optimisers[name].reset_rows(rows)
             for i in ids:
                 self.slots[i].frame_origin, self.slots[i].frame_version = frames[i].origin, frames[i].version
