@@ -8,7 +8,7 @@ weights -> data loss (eq. 8-11) -> one AdamW step on the stacked parameters.
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, replace
 from pathlib import Path
 from typing import Callable
 
@@ -16,113 +16,20 @@ import numpy as np
 import torch
 import trimesh
 
+from mapping.agent_config import MappingConfig
 from mapping.bounds import InstanceBound
 from mapping.checkpoint import load_checkpoint, save_checkpoint
 from mapping.data import Frame, Intrinsics
-from mapping.evaluate import extract_instance_mesh, merge_instance_meshes
-from mapping.field import OBJECT_FIELD, STRUCTURE_FIELD, InstanceFieldBank, LiveRows, resolve_device
+from mapping.evaluate import extract_instance_mesh
+from mapping.field import OBJECT_FIELD, STRUCTURE_FIELD, InstanceFieldBank, LiveRows
+from mapping.instance_frames import refit_frames
+from mapping.instances import ExportedInstance, InstanceFrame, InstanceSlot
 from mapping.optim import AdamConfig, StackedAdam
 from mapping.keyframes import KeyframeBuffer
-from mapping.losses import DataLossWeights, data_loss
-from mapping.runtime import flushed_denormals
-from mapping.render import (CompositeConfig, CompositeRender, RayBundle, SamplerConfig, ray_aabb, render_image,
-                            render_occupancy, sample_along_rays)
-
-
-@dataclass
-class MappingConfig:
-    """How one agent maps (vMAP's values unless said otherwise)."""
-
-    keyframe_every: int = 5
-    """Every k-th frame becomes a keyframe (the first always does)."""
-    iterations_per_keyframe: int = 20
-    """Optimisation steps after each keyframe (vMAP: 20 per frame)."""
-    rays_per_object: int = 120
-    """Rays per object instance per step (vMAP: 120)."""
-    rays_per_structure: int = 300
-    """Rays per wall / floor / ceiling instance per step (vMAP's background uses 1200 on a GPU; with
-    the 128-wide network that alone is ~30 GFLOP a step, too slow for a 2-core CPU)."""
-    own_ray_fraction: float = 0.8
-    """Share of an instance's rays on its own pixels; the rest on other surfaces in its 2D box."""
-    sampler: SamplerConfig = field(default_factory=SamplerConfig)
-    """Samples per ray (vMAP: 1 stratified + 9 around the surface), inside each instance's box."""
-    loss_weights: DataLossWeights = field(default_factory=DataLossWeights)
-    """lambda_1..3 of eq. 11 (vMAP: occupancy 10, depth 1, colour 5)."""
-    structure_width: int = 64
-    """Hidden width of wall / floor / ceiling networks (vMAP's background: 128 on a GPU; planes need
-    less, and at 128 they take 90% of a CPU step)."""
-    structure_encoding_scale: float = 2.0
-    """``FieldConfig.encoding_scale`` of the structure bank. A global map's one network lives in it
-    with the scene box as its frame, where 2 leaves its finest geometry band a period of about 1.3 m
-    (``mapping.team.global_map.GLOBAL_ENCODING_SCALE`` sets a finer one for it)."""
-    lr: float = 1e-3
-    """AdamW learning rate."""
-    object_voxel_m: float = 0.01
-    """Marching-cubes voxel for objects."""
-    structure_voxel_m: float = 0.02
-    """Marching-cubes voxel for walls, floor and ceiling."""
-    max_mesh_resolution: int = 256
-    """Grid cap per axis (vMAP)."""
-    keyframe_capacity: int = 100
-    """Keyframes held at once (memory bound; ``fast`` and ``full`` runs stay under it)."""
-    keyframe_policy: str = "reservoir"
-    """Which keyframe a new one replaces when the buffer is full: ``reservoir`` or ``window``."""
-    frame_limit: float = 2.0
-    """An instance moves to a larger frame (refit by distillation) when its box reaches this far out
-    of its frame's cube (``InstanceFieldBank.frame_coverage``)."""
-    refit_steps: int = 60
-    """Distillation steps of such a move (batched over the instances that move together)."""
-    global_frame: tuple[float, float, float, float] | None = None
-    """(centre x, y, z, half-size) given to every new instance instead of a frame from its first box:
-    the scene box of a global map (``mapping.team.global_map``), fixed so that it is never refit."""
-
-
-@dataclass
-class _InstanceSlot:
-    bank: str  # "object" or "structure"
-    row: int
-    bound: InstanceBound
-    frame_origin: int = 0
-    """Agent whose frame this instance uses (frames agree across a team: ``InstanceFrame``)."""
-    frame_version: int = 0
-    """Bumped each time that frame is enlarged."""
-    alive: bool = True
-    """False once merged into another instance (its row stays, unused)."""
-
-
-@dataclass(frozen=True)
-class InstanceFrame:
-    """An instance's fixed frame, as agents agree on it: centre (3,), half-size, and its provenance.
-
-    Of two frames of one object the team keeps the one of the lower ``origin`` agent, then the higher
-    ``version`` (``better_than``): a total order, so every agent converges to the same frame after one
-    exchange each way, and a frame never flips back and forth as confidences change.
-    """
-
-    centre: tuple[float, float, float]
-    half: float
-    origin: int
-    version: int
-
-    def better_than(self, other: "InstanceFrame") -> bool:
-        return (self.origin, -self.version, self.centre, -self.half) < (other.origin, -other.version, other.centre,
-                                                                      -other.half)
-
-    def same_as(self, other: "InstanceFrame", tol: float = 1e-5) -> bool:
-        return (abs(self.half - other.half) <= tol * max(1.0, self.half)
-                and all(abs(a - b) <= tol * max(1.0, abs(a)) for a, b in zip(self.centre, other.centre)))
-
-
-@dataclass
-class ExportedInstance:
-    """Everything a peer needs to hold or adopt one instance's network (see ``mapping.team.messages``)."""
-
-    instance_id: int
-    bank: str
-    params: np.ndarray  # (D,) float32
-    bound_lo: np.ndarray  # (3,)
-    bound_hi: np.ndarray  # (3,)
-    frame: InstanceFrame
+from mapping.losses import data_loss
+from mapping.runtime import flushed_denormals, resolve_device
+from mapping.render import (CompositeConfig, CompositeRender, RayBundle, ray_aabb, render_image, render_occupancy,
+                            sample_along_rays)
 
 
 class MappingAgent:
@@ -152,7 +59,7 @@ class MappingAgent:
                                                              encoding_scale=self.config.structure_encoding_scale),
                                                      self.device)}
         self.optimisers = {name: StackedAdam(bank, AdamConfig(lr=self.config.lr)) for name, bank in self.banks.items()}
-        self.slots: dict[int, _InstanceSlot] = {}
+        self.slots: dict[int, InstanceSlot] = {}
         self.keyframes = KeyframeBuffer(self.device, self.config.keyframe_capacity, self.config.keyframe_policy,
                                         seed=seed)
         self.frames_seen = 0
@@ -186,7 +93,7 @@ class MappingAgent:
                 frame = {"frame_centre": torch.tensor([[cx, cy, cz]]), "frame_half": torch.tensor([half])}
             row = self.banks[name].add_instances(1, torch.as_tensor(bound.lo[None]), torch.as_tensor(bound.hi[None]),
                                                  generator=self.init_generator, **frame)[0]
-            self.slots[iid] = _InstanceSlot(name, row, bound, frame_origin=self.agent_index)
+            self.slots[iid] = InstanceSlot(name, row, bound, frame_origin=self.agent_index)
             return
         grown = slot.bound.union(bound)
         if np.any(grown.lo < slot.bound.lo - 1e-6) or np.any(grown.hi > slot.bound.hi + 1e-6):
@@ -227,9 +134,9 @@ class MappingAgent:
             bank = self.banks[name]
             rows = [self.slots[i].row for i in ids]
             with flushed_denormals():
-                bank.refit_frames(rows, torch.tensor([frames[i].centre for i in ids]),
-                                  torch.tensor([frames[i].half for i in ids]), steps=self.config.refit_steps,
-                                  generator=self.generator)
+                refit_frames(bank, rows, torch.tensor([frames[i].centre for i in ids]),
+                             torch.tensor([frames[i].half for i in ids]), steps=self.config.refit_steps,
+                             generator=self.generator)
             self.optimisers[name].reset_rows(rows)
             for i in ids:
                 self.slots[i].frame_origin, self.slots[i].frame_version = frames[i].origin, frames[i].version
@@ -261,7 +168,7 @@ class MappingAgent:
         row = bank.add_instances(1, torch.as_tensor(instance.bound_lo[None]), torch.as_tensor(instance.bound_hi[None]),
                                  frame_centre=torch.tensor([f.centre]), frame_half=torch.tensor([f.half]),
                                  params=torch.as_tensor(instance.params[None]))[0]
-        self.slots[iid] = _InstanceSlot(instance.bank, row, InstanceBound(np.asarray(instance.bound_lo, np.float64),
+        self.slots[iid] = InstanceSlot(instance.bank, row, InstanceBound(np.asarray(instance.bound_lo, np.float64),
                                                                           np.asarray(instance.bound_hi, np.float64)),
                                         frame_origin=f.origin, frame_version=f.version)
 
@@ -371,10 +278,6 @@ class MappingAgent:
         return render_image(fields, c2w, intrinsics, CompositeConfig(samples_per_box=samples_per_box), stride=stride,
                             labels=labels)
 
-    def scene_mesh(self) -> tuple[trimesh.Trimesh, np.ndarray]:
-        """All instance meshes merged, with (n_vertices,) instance ids."""
-        return merge_instance_meshes(self.instance_meshes())
-
     # ---- checkpoints -----------------------------------------------------------------------------
     def save(self, path: str | Path) -> Path:
         """Parameters, optimiser state, bounds and counters, written atomically."""
@@ -407,7 +310,7 @@ class MappingAgent:
                                    torch.ones(n - bank.num_instances, 3))
             bank.load_state_dict(data["banks"][name])
             self.optimisers[name].load_state_dict(data["optimisers"][name])
-        self.slots = {int(i): _InstanceSlot(b, int(r), InstanceBound(np.asarray(lo, np.float64), np.asarray(hi, np.float64)),
+        self.slots = {int(i): InstanceSlot(b, int(r), InstanceBound(np.asarray(lo, np.float64), np.asarray(hi, np.float64)),
                                             int(origin), int(version), bool(alive))
                       for i, (b, r, lo, hi, origin, version, alive) in data["slots"].items()}
         self.frames_seen, self.steps = data["frames_seen"], data["steps"]

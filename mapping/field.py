@@ -1,39 +1,15 @@
 """Instance-level implicit field (paper eq. 5): one small vMAP MLP F_i(x) -> (c, o) per instance,
 all instances of a bank evaluated and trained as ONE batched computation.
 
-Network (vMAP's ``OccupancyMap``), hidden width W (32 for objects, 128 for structure: walls, floor,
-ceiling)::
+The network and why it is evaluated with stacked matmuls: ``mapping.instance_mlp``.
 
-    x (world) -> u in [-1, 1]^3 (the instance's box) -> t = u / encoding_scale
-    encoding: a_j = d_j . t on 21 fixed directions d_j; sin(pi 2^k a_j) for k = 0..5 (sin only, as
-              vMAP's UniDirsEmbed); geometry input = [bands 0-3, t]   4*21 + 3 = 87
-                                    colour extra   = bands 4-5         2*21     = 42
-    geometry: 87 -> W, W -> W, skip [h, geometry input] (W+87) -> W, W -> W, W -> 1 (ReLU between)
-    colour:   [h, colour extra] (W+42) -> W -> 3, sigmoid
-    occupancy o = sigmoid(10 * raw)
+Why a fixed frame per instance (``mapping.instance_frames``): the network sees
+``u = (x - frame_centre) / frame_half``, not the box, so a growing box does not stretch what it
+learned, and agents sharing a frame hold parameter vectors of the same function (eq. 12, adoption).
 
-Why stacked ``bmm``/``baddbmm`` and not ``torch.func.functional_call`` + ``vmap``: vmap lowers each
-Linear to the same batched matmuls plus its own batching overhead, and cannot merge layers; on this
-2-core CPU its forward + backward took 1.15-1.4x as long as the hand-batched form, and a Python loop
-over instances (one module and one AdamW each) 1.2-18x as long as the whole batched step
-(``benchmarks/bench_field.py`` measures all three). The layers are stored split and merged for speed
-(see ``param_layout``): the first layer and the skip layer's encoding rows are one (87, 2W) matmul;
-the occupancy output rides as one extra column of the colour layer (a 1-column matmul runs at 2-3
-GFLOP/s); and no gradient is computed for the encodings (vMAP's concatenated skip and colour inputs
-would waste 12 % of the backward work on them).
-
-Why a fixed frame per instance: the network sees ``u = (x - frame_centre) / frame_half`` with the
-centre and half-size fixed when the instance is created (from its first box), not the box itself. A
-box that grows as the instance is seen more (``set_bounds``) therefore does not stretch what the
-network learned, and two agents whose instances share one frame hold parameter vectors of the SAME
-function, which is what parameter consistency (eq. 12) and adoption need. ``refit_frames`` moves rows
-to a new frame by distillation (the box outgrew the frame, or the team agreed on another frame).
-
-Why one flat (N, D) parameter: each instance is one row, so sending an instance's parameters between
-agents, the parameter-consistency loss (eq. 12) and DiNNO/DSGD mixing are row operations, growth is a
-row concatenation, and Adam is one fused pass. The forward splits the rows into per-layer views (one
-autograd split, whose backward writes all gradients into one (N, D) buffer). ``add_instances``
-replaces the parameter tensor: always read ``bank.params`` afresh.
+Why one flat (N, D) parameter: see ``mapping.instance_params``. The forward splits the rows into
+per-layer views (one autograd split, whose backward writes all gradients into one (N, D) buffer).
+``add_instances`` replaces the parameter tensor: always read ``bank.params`` afresh.
 """
 
 from __future__ import annotations
@@ -45,127 +21,11 @@ from typing import Callable, NamedTuple, Sequence
 import torch
 from torch import Tensor, nn
 
-N_DIRECTIONS = 21
-N_BANDS = 6  # frequencies 2^0 .. 2^5 (vMAP: n_unidir_funcs = 5)
-GEOMETRY_BANDS = 4  # the first four feed the geometry trunk, the last two only the colour head
-GEOMETRY_INPUT_DIM = 3 + GEOMETRY_BANDS * N_DIRECTIONS  # 87
-COLOUR_INPUT_DIM = (N_BANDS - GEOMETRY_BANDS) * N_DIRECTIONS  # 42
-LOGIT_LIMIT = 30.0
-"""Occupancy logits are clamped to +-30: beyond, o is 1 or < 1e-13 in float32 anyway, and the sigmoid's
-gradient would underflow into denormal floats (slow on many CPUs) that then spread through backward."""
-
-
-def resolve_device(device: str | torch.device = "auto") -> torch.device:
-    """``"auto"`` -> CUDA when available, else CPU; anything else is passed to ``torch.device``."""
-    if isinstance(device, str) and device == "auto":
-        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    return torch.device(device)
-
-
-def icosahedron_directions() -> Tensor:
-    """(21, 3) float32 unit vectors: the 6 vertex axes and 15 edge-midpoint axes of a regular icosahedron.
-
-    The same well-spread set as vMAP's fixed projection table, derived here instead of tabulated; each
-    axis once (an antipode only flips the sign of the sine), sorted for a stable order.
-    """
-    phi = (1.0 + 5.0**0.5) / 2.0
-    verts = []
-    for a in (-1.0, 1.0):
-        for b in (-phi, phi):
-            verts += [(0.0, a, b), (a, b, 0.0), (b, 0.0, a)]
-    v = torch.tensor(verts, dtype=torch.float64)  # 12 vertices, edge length 2
-    i, j = torch.triu_indices(12, 12, offset=1)
-    is_edge = ((v[i] - v[j]).norm(dim=1) - 2.0).abs() < 1e-9
-    dirs = torch.cat([v, (v[i[is_edge]] + v[j[is_edge]]) / 2.0])
-    dirs = dirs / dirs.norm(dim=1, keepdim=True)
-    first = dirs[torch.arange(len(dirs)), (dirs.abs() > 1e-9).to(torch.int64).argmax(dim=1)]
-    dirs = dirs * first.sign()[:, None]  # one representative per axis: first non-zero component > 0
-    dirs = torch.unique(dirs.round(decimals=6), dim=0)
-    assert dirs.shape == (N_DIRECTIONS, 3)
-    return dirs.float()
-
-
-def encode_positions(unit_coords: Tensor, directions: Tensor, scale: float) -> tuple[Tensor, Tensor]:
-    """vMAP's directional sine encoding, split into the geometry input and the colour-only extra.
-
-    Speed on CPU (measured 1.7x faster than the direct form): sin(2^k a) for k >= 1 comes from sin a
-    and cos a by the double-angle recursion (one multiply and one fused multiply-add per band instead
-    of a sine of a large argument; no less accurate, since the float32 argument 2^5 pi a itself
-    carries ~1e-5 error), and the features are written feature-major into one (..., 129, P) buffer,
-    so every elementwise pass runs over long contiguous rows; the outputs are transposed views of it,
-    which the matmuls read at no cost.
-
-    Args:
-        unit_coords: (..., P, 3) box coordinates (inside the box in [-1, 1]).
-        directions: (21, 3) unit projection directions.
-        scale: coordinates are divided by it first (vMAP: obj_scale).
-
-    Returns:
-        (..., P, 87) geometry input [sin bands 0-3, t] and (..., P, 42) colour extra [sin bands 4-5],
-        where t = u / scale and band k is sin(pi 2^k d_j . t).
-    """
-    n_dir, n_col = N_DIRECTIONS, COLOUR_INPUT_DIM
-    eye = torch.eye(3, dtype=unit_coords.dtype, device=unit_coords.device)
-    projection = torch.cat([directions.to(unit_coords) * math.pi, eye]) / scale  # (24, 3): band-0 phases and t
-    phase_t = projection @ unit_coords.transpose(-1, -2)  # (..., 24, P)
-    features = unit_coords.new_empty(*phase_t.shape[:-2], n_col + GEOMETRY_INPUT_DIM, phase_t.shape[-1])
-    features[..., -3:, :] = phase_t[..., n_dir:, :]
-    rows = [n_col + k * n_dir for k in range(GEOMETRY_BANDS)] + [k * n_dir for k in range(N_BANDS - GEOMETRY_BANDS)]
-    phase = phase_t[..., :n_dir, :]
-    s = torch.sin(phase, out=features[..., rows[0] : rows[0] + n_dir, :])
-    c2 = torch.cos(phase).mul_(2.0)  # 2 cos a
-    two = torch.full((), 2.0, dtype=phase.dtype, device=phase.device)
-    for k in range(1, N_BANDS):
-        s_next = torch.mul(s, c2, out=features[..., rows[k] : rows[k] + n_dir, :])  # sin 2a = sin a * 2 cos a
-        if k + 1 < N_BANDS:
-            c2 = torch.addcmul(two, s, s, value=-4.0)  # 2 cos 2a = 2 - 4 sin^2 a
-        s = s_next
-    return features[..., n_col:, :].transpose(-1, -2), features[..., :n_col, :].transpose(-1, -2)
-
-
-def param_layout(width: int) -> list[tuple[str, tuple[int, ...]]]:
-    """Names and shapes of one instance's parameters, in their order inside the flat row.
-
-    vMAP's layers are stored split and merged for speed: the skip layer (W+87 -> W) is ``w_skip``
-    (its hidden rows) plus the right half of ``w_enc`` (its encoding rows, beside the first layer's
-    87 -> W); the colour layer (W+42 -> W) is the left part of ``w_head`` (hidden rows) plus
-    ``w_col_enc``; the occupancy output (W -> 1) is the last column of ``w_head``.
-    """
-    w, g, c = width, GEOMETRY_INPUT_DIM, COLOUR_INPUT_DIM
-    return [
-        ("w_enc", (g, 2 * w)),  # [first layer | skip layer's encoding rows]
-        ("b_enc", (2 * w,)),  # [first layer bias | skip layer bias]
-        ("w_mid1", (w, w)),
-        ("b_mid1", (w,)),
-        ("w_skip", (w, w)),
-        ("w_mid2", (w, w)),
-        ("b_mid2", (w,)),
-        ("w_head", (w, w + 1)),  # [colour layer's hidden rows | occupancy output]
-        ("b_head", (w + 1,)),
-        ("w_col_enc", (c, w)),
-        ("w_rgb", (w, 3)),
-        ("b_rgb", (3,)),
-    ]
-
-
-def mlp_flops_per_point(width: int) -> int:
-    """Forward FLOPs of one point, 2 * in * out summed over the vMAP layers (biases and activations ignored)."""
-    w, g, c = width, GEOMETRY_INPUT_DIM, COLOUR_INPUT_DIM
-    layers = [(g, w), (w, w), (w + g, w), (w, w), (w, 1), (w + c, w), (w, 3)]
-    return sum(2 * i * o for i, o in layers)
-
-
-def frame_for_box(bound_min: Tensor, bound_max: Tensor, margin: float = 1.0, min_half_m: float = 0.0
-                  ) -> tuple[Tensor, Tensor]:
-    """The frame of (k, 3) boxes: their centres (k, 3) and half-sizes (k,) = max(margin x largest
-    half-side, min_half_m).
-
-    Isotropic (one half-size for all axes), so a box growing along one axis never changes how the
-    network sees the others. The margin leaves room to grow: the agent moves an instance to a larger
-    frame (a refit) only when its box reaches ``MappingConfig.frame_limit`` of the frame's half-size.
-    """
-    half = (((bound_max - bound_min) / 2.0).amax(-1) * margin).clamp_min(min_half_m)
-    return (bound_min + bound_max) / 2.0, half
+from mapping.encoding import encode_positions, icosahedron_directions
+from mapping.instance_frames import frame_for_box
+from mapping.instance_mlp import batched_mlp
+from mapping.instance_params import init_instance_params, param_layout
+from mapping.runtime import resolve_device
 
 
 @dataclass(frozen=True)
@@ -196,38 +56,6 @@ class FieldOutput(NamedTuple):
 
     occupancy: Tensor
     colour: Tensor | None
-
-
-def init_instance_params(width: int, k: int, generator: torch.Generator | None = None) -> Tensor:
-    """(k, D) float32 initial rows, drawn on the CPU so a seed gives the same network on any device.
-
-    vMAP's init: Xavier-normal weights, PyTorch's default uniform(+-1/sqrt(fan_in)) biases; split
-    layers are drawn whole (their fan-in includes both halves) and then cut.
-    """
-    g, c = GEOMETRY_INPUT_DIM, COLOUR_INPUT_DIM
-
-    def weight(fan_in: int, fan_out: int) -> Tensor:
-        std = math.sqrt(2.0 / (fan_in + fan_out))
-        return torch.randn(k, fan_in, fan_out, generator=generator) * std
-
-    def bias(fan_in: int, fan_out: int) -> Tensor:
-        return (torch.rand(k, fan_out, generator=generator) * 2.0 - 1.0) / math.sqrt(fan_in)
-
-    w = width
-    w_in, b_in = weight(g, w), bias(g, w)
-    w_mid1, b_mid1 = weight(w, w), bias(w, w)
-    w_skip, b_skip = weight(w + g, w), bias(w + g, w)  # rows: [hidden, encoding] as vMAP's cat
-    w_mid2, b_mid2 = weight(w, w), bias(w, w)
-    w_occ, b_occ = weight(w, 1), bias(w, 1)
-    w_col, b_col = weight(w + c, w), bias(w + c, w)
-    w_rgb, b_rgb = weight(w, 3), bias(w, 3)
-    parts = {
-        "w_enc": torch.cat([w_in, w_skip[:, w:]], dim=2), "b_enc": torch.cat([b_in, b_skip], dim=1),
-        "w_mid1": w_mid1, "b_mid1": b_mid1, "w_skip": w_skip[:, :w], "w_mid2": w_mid2, "b_mid2": b_mid2,
-        "w_head": torch.cat([w_col[:, :w], w_occ], dim=2), "b_head": torch.cat([b_col, b_occ], dim=1),
-        "w_col_enc": w_col[:, w:], "w_rgb": w_rgb, "b_rgb": b_rgb,
-    }
-    return torch.cat([parts[name].reshape(k, -1) for name, _ in param_layout(width)], dim=1)
 
 
 class InstanceFieldBank(nn.Module):
@@ -310,57 +138,11 @@ class InstanceFieldBank(nn.Module):
         lo, hi, c, h = self.bound_min[sel], self.bound_max[sel], self.frame_centre[sel], self.frame_half[sel]
         return torch.maximum((lo - c).abs(), (hi - c).abs()).amax(-1) / h
 
-    def refit_frames(self, rows: Sequence[int], frame_centre: Tensor, frame_half: Tensor, steps: int = 150,
-                     points: int = 1024, lr: float = 3e-3, generator: torch.Generator | None = None) -> float:
-        """Move ``rows`` to new frames by distillation: fit each row, in its new frame, to what it
-        rendered in its old one (occupancy logits and colour at random points of its box), starting
-        from its old parameters. Returns the final mean absolute occupancy difference.
-
-        Needed when a box outgrows its frame (``frame_coverage`` too large) or when the team agrees on
-        another instance's frame; callers reset the rows' optimiser state afterwards.
-        """
-        if len(rows) == 0:
-            return 0.0
-        idx = torch.as_tensor(rows, dtype=torch.long, device=self.device)
-        centre = torch.as_tensor(frame_centre, dtype=torch.float32, device=self.device).reshape(len(rows), 3)
-        half = torch.as_tensor(frame_half, dtype=torch.float32, device=self.device).reshape(len(rows))
-        lo, hi = self.bound_min[idx], self.bound_max[idx]
-        gen = generator if generator is not None and generator.device == self.device else None
-        old_params = self.params.detach()[idx].clone()
-        old_centre, old_half = self.frame_centre[idx].clone(), self.frame_half[idx].clone()
-
-        def sample() -> Tensor:
-            u = torch.rand(len(rows), points, 3, device=self.device, generator=gen)
-            return lo[:, None] + (hi - lo)[:, None] * u
-
-        def evaluate(params: Tensor, c: Tensor, h: Tensor, x: Tensor) -> tuple[Tensor, Tensor]:
-            return self._evaluate(params, (x - c[:, None]) / h[:, None, None], with_colour=True, logits=True)
-
-        student = nn.Parameter(old_params.clone())
-        optimiser = torch.optim.Adam([student], lr=lr)
-        diff = 0.0
-        for _ in range(steps):
-            x = sample()
-            with torch.no_grad():
-                target_logit, target_colour = evaluate(old_params, old_centre, old_half, x)
-            logit, colour = evaluate(student, centre, half, x)
-            target_occ, occ = torch.sigmoid(target_logit), torch.sigmoid(logit)
-            loss = (occ - target_occ).abs().mean() + 0.2 * ((colour - target_colour).abs().mean(-1)
-                                                            * target_occ).mean()
-            optimiser.zero_grad()
-            loss.backward()
-            optimiser.step()
-            diff = float((occ - target_occ).abs().mean().detach())
-        with torch.no_grad():
-            self.params[idx] = student.detach()
-            self.frame_centre[idx] = centre
-            self.frame_half[idx] = half
-        return diff
-
     @torch.no_grad()
     def set_frames(self, rows: Sequence[int] | Tensor, frame_centre: Tensor, frame_half: Tensor) -> None:
         """Replace the frames of ``rows`` as they are (no refit: for parameters that were learned in
-        that frame, e.g. a peer's; ``refit_frames`` moves a learned network to another frame)."""
+        that frame, e.g. a peer's; ``instance_frames.refit_frames`` moves a learned network to another
+        frame)."""
         rows = torch.as_tensor(rows, dtype=torch.long, device=self.device)
         self.frame_centre[rows] = torch.as_tensor(frame_centre, dtype=torch.float32, device=self.device).reshape(-1, 3)
         self.frame_half[rows] = torch.as_tensor(frame_half, dtype=torch.float32, device=self.device).reshape(-1)
@@ -412,58 +194,17 @@ class InstanceFieldBank(nn.Module):
         params = self.params if rows is None else self.params.index_select(0, rows)
         if points.shape[0] != params.shape[0] or points.shape[-1] != 3:
             raise ValueError(f"points must be ({params.shape[0]}, P, 3), got {tuple(points.shape)}")
-        occupancy, colour = self._evaluate(params, self.to_unit(points, rows), with_colour)
+        occupancy, colour = self.evaluate_unit(params, self.to_unit(points, rows), with_colour)
         return FieldOutput(occupancy, colour)
 
-    def _evaluate(self, params: Tensor, unit: Tensor, with_colour: bool, logits: bool = False
-                  ) -> tuple[Tensor, Tensor | None]:
-        """The MLP on (n, P, 3) frame coordinates with (n, D) rows: occupancy (or its logit) and colour."""
+    def evaluate_unit(self, params: Tensor, unit: Tensor, with_colour: bool, logits: bool = False
+                      ) -> tuple[Tensor, Tensor | None]:
+        """The MLP on (n, P, 3) frame coordinates with (n, D) rows: occupancy (or its logit) and colour.
+
+        Public for ``instance_frames.refit_frames``, which evaluates rows in frames they do not hold."""
         geometry, colour_in = encode_positions(unit, self.directions, self.config.encoding_scale)
-        p = self.split_params(params)
-        w = self.config.hidden_width
-        b = {name: t.unsqueeze(1) for name, t in p.items() if name.startswith("b_")}  # (n, 1, out)
-        # torch.split (one backward concatenation), not slicing (a zero-filled gradient per slice).
-        pre_in, pre_skip = torch.split(torch.baddbmm(b["b_enc"], geometry, p["w_enc"]), w, dim=-1)
-        h = torch.relu(pre_in)
-        h = torch.relu_(torch.baddbmm(b["b_mid1"], h, p["w_mid1"]))
-        h = torch.relu_(torch.baddbmm(pre_skip, h, p["w_skip"]))  # skip layer (W+87 -> W)
-        h = torch.relu_(torch.baddbmm(b["b_mid2"], h, p["w_mid2"]))
-        pre_col, raw = torch.split(torch.baddbmm(b["b_head"], h, p["w_head"]), w, dim=-1)  # colour part | raw
-        logit = self._logit(raw.squeeze(-1))
-        occupancy = logit if logits else torch.sigmoid(logit)
-        if not with_colour:
-            return occupancy, None
-        c = torch.relu_(torch.baddbmm(pre_col, colour_in, p["w_col_enc"]))  # colour layer (W+42 -> W)
-        return occupancy, torch.sigmoid(torch.baddbmm(b["b_rgb"], c, p["w_rgb"]))
-
-    def _logit(self, raw: Tensor) -> Tensor:
-        """sharpness * raw, clamped to +-LOGIT_LIMIT."""
-        return (self.config.occupancy_sharpness * raw).clamp(-LOGIT_LIMIT, LOGIT_LIMIT)
-
-    def looped_forward(self, points: Tensor, with_colour: bool = True) -> FieldOutput:
-        """The same as ``forward`` with a Python loop over instances and vMAP's concatenating layers
-        (reference for tests and the benchmark; not for training)."""
-        w = self.config.hidden_width
-        occupancies, colours = [], []
-        for i in range(self.num_instances):
-            p = self.split_params(self.params[i])
-            unit = self.to_unit(points[i : i + 1], torch.tensor([i], device=self.device))[0]
-            geometry, colour_in = encode_positions(unit, self.directions, self.config.encoding_scale)
-            b_in, b_skip = p["b_enc"][:w], p["b_enc"][w:]
-            w_in, w_skip = p["w_enc"][:, :w], torch.cat([p["w_skip"], p["w_enc"][:, w:]])
-            w_col, b_col = torch.cat([p["w_head"][:, :w], p["w_col_enc"]]), p["b_head"][:w]
-            w_occ, b_occ = p["w_head"][:, w:], p["b_head"][w:]
-            h = torch.relu(geometry @ w_in + b_in)
-            h = torch.relu(h @ p["w_mid1"] + p["b_mid1"])
-            h = torch.relu(torch.cat([h, geometry], -1) @ w_skip + b_skip)
-            h = torch.relu(h @ p["w_mid2"] + p["b_mid2"])
-            occupancies.append(torch.sigmoid(self._logit((h @ w_occ + b_occ)[:, 0])))
-            if with_colour:
-                c = torch.relu(torch.cat([h, colour_in], -1) @ w_col + b_col)
-                colours.append(torch.sigmoid(c @ p["w_rgb"] + p["b_rgb"]))
-        occupancy = torch.stack(occupancies) if occupancies else points.new_zeros(0, points.shape[1])
-        colour = (torch.stack(colours) if colours else points.new_zeros(0, points.shape[1], 3)) if with_colour else None
-        return FieldOutput(occupancy, colour)
+        return batched_mlp(self.split_params(params), geometry, colour_in, self.config.hidden_width,
+                           self.config.occupancy_sharpness, with_colour, logits)
 
     def query(self, points: Tensor, rows: Tensor, with_colour: bool = True, block_size: int = 4096) -> FieldOutput:
         """Evaluate a ragged set: point m through instance ``rows[m]``, still one batched forward.

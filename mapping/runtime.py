@@ -1,4 +1,5 @@
-"""The one place that sets how many CPU threads torch uses.
+"""Where torch runs: the device a mapper asks for, and the one place that sets how many CPU threads
+torch uses.
 
 OpenMP threads of two torch processes on one machine stall each other (a 10 ms step measured at
 670 ms with 2 + 2 threads on 2 cores), so a library that several envs or agents share must not leave
@@ -12,6 +13,13 @@ from contextlib import contextmanager
 from typing import Iterator
 
 import torch
+
+
+def resolve_device(device: str | torch.device = "auto") -> torch.device:
+    """``"auto"`` -> CUDA when available, else CPU; anything else is passed to ``torch.device``."""
+    if isinstance(device, str) and device == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    return torch.device(device)
 
 
 def available_cores() -> int:

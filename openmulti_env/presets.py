@@ -21,7 +21,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from mapping.agent import MappingConfig
+from mapping.agent_config import MappingConfig
 from mapping.team import ConsistencyConfig, TeamConfig
 from openmulti_env.world.paths import PathConfig
 from openmulti_env.world.sensor import SensorConfig

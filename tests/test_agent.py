@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 import torch
 
-from mapping.agent import MappingAgent, MappingConfig
+from mapping.agent import MappingAgent
+from mapping.agent_config import MappingConfig
 from mapping.checkpoint import CheckpointError
 from mapping.evaluate import evaluate_mesh
 

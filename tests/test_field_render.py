@@ -11,17 +11,12 @@ import pytest
 import torch
 
 from mapping.data.frame import Intrinsics
-from mapping.field import (
-    COLOUR_INPUT_DIM,
-    GEOMETRY_INPUT_DIM,
-    FieldConfig,
-    FieldOutput,
-    InstanceFieldBank,
-    encode_positions,
-    icosahedron_directions,
-    resolve_device,
-)
+from mapping.encoding import COLOUR_INPUT_DIM, GEOMETRY_INPUT_DIM, encode_positions, icosahedron_directions
+from mapping.field import FieldConfig, FieldOutput, InstanceFieldBank
+from mapping.field_reference import looped_forward
+from mapping.instance_frames import refit_frames
 from mapping.optim import AdamConfig, StackedAdam, _reference_adamw
+from mapping.runtime import resolve_device
 from mapping.losses import DataLossWeights, data_loss, depth_loss, masked_mean, occupancy_loss
 from mapping.render import (
     CompositeConfig,
@@ -138,7 +133,7 @@ def test_batched_forward_and_gradients_match_loop():
     (occ.sum() + (col * torch.linspace(0, 1, 3)).sum()).backward()
     grad_batched = bank.params.grad.clone()
     bank.params.grad = None
-    occ_loop, col_loop = bank.looped_forward(points)
+    occ_loop, col_loop = looped_forward(bank, points)
     (occ_loop.sum() + (col_loop * torch.linspace(0, 1, 3)).sum()).backward()
     assert occ.shape == (5, 37) and col.shape == (5, 37, 3)
     assert torch.allclose(occ, occ_loop, atol=1e-5) and torch.allclose(col, col_loop, atol=1e-5)
@@ -198,7 +193,7 @@ def test_refit_moves_a_network_to_another_frame_keeping_its_shape():
     points = points_in_boxes(bank, 4000, seed=7)
     before = bank(points).occupancy.detach()
     centre, half = bank.frame_centre.clone() + 0.2, bank.frame_half.clone() * 1.5
-    diff = bank.refit_frames([0], centre, half, steps=300, generator=torch.Generator().manual_seed(0))
+    diff = refit_frames(bank, [0], centre, half, steps=300, generator=torch.Generator().manual_seed(0))
     assert torch.allclose(bank.frame_centre, centre) and torch.allclose(bank.frame_half, half)
     after = bank(points).occupancy.detach()
     assert diff < 0.1
@@ -212,7 +207,7 @@ def test_structure_width_bank():
     points = torch.rand(2, 10, 3)
     occ, col = bank(points)
     assert occ.shape == (2, 10) and col.shape == (2, 10, 3)
-    occ_loop, col_loop = bank.looped_forward(points)
+    occ_loop, col_loop = looped_forward(bank, points)
     assert torch.allclose(occ, occ_loop, atol=1e-5) and torch.allclose(col, col_loop, atol=1e-5)
 
 

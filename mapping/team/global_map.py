@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from mapping.field import mlp_flops_per_point
+from mapping.instance_params import mlp_flops_per_point
 from mapping.perception.codebook import CodeBookEntry
 
 GLOBAL_WIDTH = 128

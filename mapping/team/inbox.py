@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from mapping.agent import ExportedInstance, InstanceFrame
+from mapping.instances import ExportedInstance, InstanceFrame
 from mapping.bounds import InstanceBound
 from mapping.team.arrival import ArrivalDecision, InstanceView, align_arrivals
 from mapping.team.global_map import GLOBAL_INSTANCE_ID

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import torch
 
-from mapping.agent import MappingConfig
+from mapping.agent_config import MappingConfig
 from mapping.data.source import DataSource, prepare_inputs
 from mapping.field import OBJECT_FIELD
 from mapping.perception import shared_text_encoder

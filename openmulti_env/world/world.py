@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from mapping.data import AgentSequence, Frame, Intrinsics
+from mapping.data import Frame, Intrinsics
 from openmulti_env.world.coverage import CoverageReport, coverage_report
 from openmulti_env.world.paths import PathConfig, plan_agent_paths
 from openmulti_env.world.presets import make_scene
@@ -93,11 +93,6 @@ class World:
         if not 0 <= index < len(poses):
             raise IndexError(f"agent {agent} has {len(poses)} frames, asked for frame {index}")
         return self.sensor.render(poses[index], index=index)
-
-    def agent_sequence(self, agent: int, stride: int = 1) -> AgentSequence:
-        """All frames of one agent rendered in memory (every ``stride``-th)."""
-        frames = [self.render(agent, i) for i in range(0, len(self.agent_poses[agent]), stride)]
-        return AgentSequence(agent, frames, name=f"{self.scene.name}/agent_{agent}")
 
     def coverage(self, n_points: int = 30000, stride: int = 2) -> CoverageReport:
         """Coverage of the observable surface by each agent and by the team."""

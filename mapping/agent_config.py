@@ -1,0 +1,57 @@
+"""How one agent maps (``MappingConfig``): apart from the agent so that configs, presets and the
+team's settings can name it without importing the mapper."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from mapping.losses import DataLossWeights
+from mapping.render import SamplerConfig
+
+
+@dataclass
+class MappingConfig:
+    """How one agent maps (vMAP's values unless said otherwise)."""
+
+    keyframe_every: int = 5
+    """Every k-th frame becomes a keyframe (the first always does)."""
+    iterations_per_keyframe: int = 20
+    """Optimisation steps after each keyframe (vMAP: 20 per frame)."""
+    rays_per_object: int = 120
+    """Rays per object instance per step (vMAP: 120)."""
+    rays_per_structure: int = 300
+    """Rays per wall / floor / ceiling instance per step (vMAP's background uses 1200 on a GPU; with
+    the 128-wide network that alone is ~30 GFLOP a step, too slow for a 2-core CPU)."""
+    own_ray_fraction: float = 0.8
+    """Share of an instance's rays on its own pixels; the rest on other surfaces in its 2D box."""
+    sampler: SamplerConfig = field(default_factory=SamplerConfig)
+    """Samples per ray (vMAP: 1 stratified + 9 around the surface), inside each instance's box."""
+    loss_weights: DataLossWeights = field(default_factory=DataLossWeights)
+    """lambda_1..3 of eq. 11 (vMAP: occupancy 10, depth 1, colour 5)."""
+    structure_width: int = 64
+    """Hidden width of wall / floor / ceiling networks (vMAP's background: 128 on a GPU; planes need
+    less, and at 128 they take 90% of a CPU step)."""
+    structure_encoding_scale: float = 2.0
+    """``FieldConfig.encoding_scale`` of the structure bank. A global map's one network lives in it
+    with the scene box as its frame, where 2 leaves its finest geometry band a period of about 1.3 m
+    (``mapping.team.global_map.GLOBAL_ENCODING_SCALE`` sets a finer one for it)."""
+    lr: float = 1e-3
+    """AdamW learning rate."""
+    object_voxel_m: float = 0.01
+    """Marching-cubes voxel for objects."""
+    structure_voxel_m: float = 0.02
+    """Marching-cubes voxel for walls, floor and ceiling."""
+    max_mesh_resolution: int = 256
+    """Grid cap per axis (vMAP)."""
+    keyframe_capacity: int = 100
+    """Keyframes held at once (memory bound; ``fast`` and ``full`` runs stay under it)."""
+    keyframe_policy: str = "reservoir"
+    """Which keyframe a new one replaces when the buffer is full: ``reservoir`` or ``window``."""
+    frame_limit: float = 2.0
+    """An instance moves to a larger frame (refit by distillation) when its box reaches this far out
+    of its frame's cube (``InstanceFieldBank.frame_coverage``)."""
+    refit_steps: int = 60
+    """Distillation steps of such a move (batched over the instances that move together)."""
+    global_frame: tuple[float, float, float, float] | None = None
+    """(centre x, y, z, half-size) given to every new instance instead of a frame from its first box:
+    the scene box of a global map (``mapping.team.global_map``), fixed so that it is never refit."""
