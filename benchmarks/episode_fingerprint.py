@@ -4,8 +4,8 @@ with seeded random actions, plus the final completion estimate and bytes in plai
 A refactor that must keep behaviour bit for bit runs this before and after and compares the hashes
 (``--expect`` does it and exits 1 on a difference)::
 
-    python benchmarks/episode_fingerprint.py --preset tiny --seed 11 --action-seed 2
-    python benchmarks/episode_fingerprint.py --preset fast --seed 0 --action-seed 0 --json out.json
+    python benchmarks/episode_fingerprint.py --preset rl_tiny --seed 11 --action-seed 2
+    python benchmarks/episode_fingerprint.py --preset rl --seed 0 --action-seed 0 --json out.json
 """
 
 from __future__ import annotations

@@ -33,7 +33,8 @@ class FieldConfig:
     """Architecture of every instance network in one bank."""
 
     hidden_width: int = 32
-    """W: 32 for objects, 128 for background / structure (vMAP)."""
+    """W: 32 for objects, 128 for background / structure (vMAP); the mapper sets the structure width
+    with ``MappingConfig.structure_width`` (64 by default)."""
     encoding_scale: float = 2.0
     """Box coordinates in [-1, 1] are divided by this before the encoding. vMAP divides metres by 2
     (objects) or 5 (background), i.e. about 2-5 here for 0.5-2 m boxes; 0.5-4 learned a sphere

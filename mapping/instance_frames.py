@@ -16,6 +16,8 @@ from typing import TYPE_CHECKING, Sequence
 import torch
 from torch import Tensor, nn
 
+from mapping.runtime import same_device
+
 if TYPE_CHECKING:  # the bank builds its default frames here: a runtime import would be circular
     from mapping.field import InstanceFieldBank
 
@@ -49,7 +51,7 @@ def refit_frames(bank: InstanceFieldBank, rows: Sequence[int], frame_centre: Ten
     centre = torch.as_tensor(frame_centre, dtype=torch.float32, device=bank.device).reshape(len(rows), 3)
     half = torch.as_tensor(frame_half, dtype=torch.float32, device=bank.device).reshape(len(rows))
     lo, hi = bank.bound_min[idx], bank.bound_max[idx]
-    gen = generator if generator is not None and generator.device == bank.device else None
+    gen = generator if generator is not None and same_device(generator.device, bank.device) else None
     old_params = bank.params.detach()[idx].clone()
     old_centre, old_half = bank.frame_centre[idx].clone(), bank.frame_half[idx].clone()
 

@@ -2,7 +2,7 @@
 
 ``from openmulti_env import parallel_env, env, raw_env`` (imported on first use, so that the CLI and the
 world stay light); importing the package registers ``openmulti/openmulti-v0`` in PettingZoo's registry
-(``pettingzoo.make("parallel", "openmulti/openmulti-v0", preset="tiny")``).
+(``pettingzoo.make("parallel", "openmulti/openmulti-v0", preset="rl_tiny")``).
 """
 
 from __future__ import annotations

@@ -16,7 +16,7 @@ from mapping.field import FieldConfig, FieldOutput, InstanceFieldBank
 from mapping.field_reference import looped_forward
 from mapping.instance_frames import refit_frames
 from mapping.optim import AdamConfig, StackedAdam, _reference_adamw
-from mapping.runtime import resolve_device
+from mapping.runtime import resolve_device, same_device
 from mapping.losses import DataLossWeights, data_loss, depth_loss, masked_mean, occupancy_loss
 from mapping.render import (
     CompositeConfig,
@@ -163,6 +163,19 @@ def test_deterministic_init_and_device():
     assert not torch.equal(make_bank(3, seed=7).params, make_bank(3, seed=8).params)
     assert resolve_device("auto").type == ("cuda" if torch.cuda.is_available() else "cpu")
     assert InstanceFieldBank(device="cpu").num_instances == 0
+
+
+def test_devices_compare_by_what_they_are():
+    """``cuda`` and ``cuda:0`` are one device: the refit's seeded generator is used on either spelling."""
+    assert same_device(torch.device("cpu"), torch.device("cpu"))
+    assert not same_device(torch.device("cpu"), torch.device("cuda", 0))
+    assert same_device(torch.device("cuda"), torch.device("cuda", torch.cuda.current_device()
+                                                           if torch.cuda.is_available() else 0))
+    if torch.cuda.is_available():
+        assert resolve_device("cuda").index is not None
+    else:
+        with pytest.raises(ValueError, match="no CUDA device"):
+            resolve_device("cuda")
 
 
 def test_get_set_instance_params_round_trip():

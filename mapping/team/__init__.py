@@ -7,7 +7,10 @@
     cross_rendering  Cross Rendering Supervision, eq. 13
     config        TeamConfig, ConsistencyConfig, ExchangeConfig
     global_map    the global-map mode (one network for the scene: the global baselines)
-    member        one agent: online fusion, mapper, what it holds of its peers
+    member        one agent: online fusion, mapper, what it holds of its peers; composed of
+      outbox      what it sends (parameter, ray, point-cloud messages) and what each peer holds of it
+      inbox       what arrives: alignment and adoption
+      agreement   its consistency iterations: eq. 12 and eq. 13
     report        RoundReport, AgentSnapshot (what each agent knows after a round) and their parts
     team          Team.round(plan) -> RoundReport, checkpoints
 """

@@ -4,7 +4,8 @@ Two kinds, as the paper's exchange (sec. III-D), and a third for the transmissio
 - ``ParameterMessage``: per instance, its network vector, box, frame and code-book entry, and, the
   first time that instance goes to that peer (or after its cloud grew), its down-sampled point cloud
   for the Cross-Agent Instance Alignment.
-- ``RayMessage``: the camera poses of the sender's current frames and a sampling seed the receiver
+- ``RayMessage``: camera poses of views the sender has mapped (by default drawn from the frames it read
+  before this round; ``ConsistencyConfig.ray_poses``) and a sampling seed the receiver
   replays to get the same pixels (never depth: the receiver renders the peer's depth itself with the
   peer's parameters, eq. 13).
 - ``PointCloudMessage``: the down-sampled points the sender has observed so far: what point-cloud
@@ -77,7 +78,7 @@ class ParameterMessage:
 
 @dataclass
 class RayMessage:
-    """The sender's current camera poses ((F, 4, 4) float32, camera-to-world), its intrinsics
+    """Camera poses of views the sender has mapped ((F, 4, 4) float32, camera-to-world), its intrinsics
     (fx, fy, cx, cy, width, height), and the seed and count of the pixels to replay per pose."""
 
     sender: int

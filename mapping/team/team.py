@@ -5,7 +5,7 @@ runs its local iterations (the data loss, and eq. 12 toward what it last receive
 ``ConsistencyConfig.local_consensus``); the channel carries the messages the plan asks for; every receiver holds
 and aligns what arrived and runs its consistency iterations (eq. 12-13). The plan is two (N, N)
 boolean matrices, ``send_params[i, j]`` (i sends its parameters to j) and ``share_rays[i, j]`` (i
-shares its current rays with j), diagonal False: the env's actions and the CLI's scripted policies
+shares rays of views it has mapped with j), diagonal False: the env's actions and the CLI's scripted policies
 both drive the team through it only.
 
 Time: each agent's own compute seconds are reported (a fleet gives each robot its own computer), and

@@ -23,7 +23,7 @@ MAX_AGENTS = 8  # openmulti_env.world.world.MAX_AGENTS (a test checks they agree
 
 PENDING = {
     "train": "learning communication schedules is not implemented yet; the PettingZoo env it will train on is "
-             "there (from openmulti_env import parallel_env; README, 'The PettingZoo env')",
+             "there (from openmulti_env import parallel_env; docs/env.md)",
 }
 
 
