@@ -100,7 +100,7 @@ class StackedAdam:
                              beta1=cfg.betas[0], beta2=cfg.betas[1], lr=cfg.lr,
                              weight_decay=cfg.weight_decay, eps=cfg.eps, maximize=False)
         else:
-            _reference_adamw(*flat, run_steps, cfg)
+            reference_adamw(*flat, run_steps, cfg)
         for (a, b), step in zip(runs, run_steps):
             self.steps[a:b] = step
 
@@ -119,7 +119,7 @@ class StackedAdam:
         self._sync()
 
 
-def _reference_adamw(params: list[Tensor], grads: list[Tensor], exp_avgs: list[Tensor],
+def reference_adamw(params: list[Tensor], grads: list[Tensor], exp_avgs: list[Tensor],
                      exp_avg_sqs: list[Tensor], steps: list[Tensor], cfg: AdamConfig) -> None:
     """Per-row AdamW with PyTorch's arithmetic (used where the fused kernel is unavailable, and in tests)."""
     beta1, beta2 = cfg.betas

@@ -15,7 +15,7 @@ from mapping.encoding import COLOUR_INPUT_DIM, GEOMETRY_INPUT_DIM, encode_positi
 from mapping.field import FieldConfig, FieldOutput, InstanceFieldBank
 from mapping.field_reference import looped_forward
 from mapping.instance_frames import refit_frames
-from mapping.optim import AdamConfig, StackedAdam, _reference_adamw
+from mapping.optim import AdamConfig, StackedAdam, reference_adamw
 from mapping.runtime import resolve_device, same_device
 from mapping.losses import DataLossWeights, data_loss, depth_loss, masked_mean, occupancy_loss
 from mapping.render import (
@@ -261,7 +261,7 @@ def test_step_only_some_rows_and_reference_arithmetic():
     # The fused kernel agrees with the reference arithmetic.
     p, (m, v, s) = before[[1, 3]].clone(), (t[[1, 3]].clone() for t in moments)
     g = bank.params.grad[[1, 3]]
-    _reference_adamw(list(p), list(g), list(m), list(v), list(s), opt.config)
+    reference_adamw(list(p), list(g), list(m), list(v), list(s), opt.config)
     assert torch.allclose(p, after[[1, 3]], atol=1e-7, rtol=0)
     assert torch.allclose(m, opt.exp_avg[[1, 3]], atol=1e-9)
 
