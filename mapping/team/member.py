@@ -26,7 +26,7 @@ from mapping.fusion.online import OnlineFusion
 from mapping.perception.codebook import CodeBook, CodeBookEntry
 from mapping.perception.types import FrameSegmentation
 from mapping.team.agreement import Agreement, PenaltyReading
-from mapping.team.config import ConsistencyConfig, ExchangeConfig, TeamConfig  # noqa: F401 (re-exported)
+from mapping.team.config import TeamConfig
 from mapping.team.global_map import as_global_image, global_entry
 from mapping.team.inbox import Inbox
 from mapping.team.messages import InstancePayload

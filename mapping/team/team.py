@@ -25,7 +25,8 @@ import numpy as np
 
 from mapping.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
 from mapping.team.channel import DELIVERED, DROPPED, OVER_BUDGET, Channel
-from mapping.team.member import AgentStream, TeamConfig, TeamMember, Vocabulary
+from mapping.team.config import TeamConfig
+from mapping.team.member import AgentStream, TeamMember, Vocabulary
 from mapping.team.messages import ParameterMessage, RayMessage
 from mapping.team.report import (AgentSnapshot, AlignmentCounts, ConsistencyTerms, DeliveryRecord, LossTerms,
                                  RoundReport)
