@@ -7,8 +7,8 @@ and ``oracle_alignment`` give the ablation and the ground-truth upper bound with
 The instance confidence of eq. 1-2 lives in ``confidence``.
 """
 
-from mapping.alignment.align import (AgentAlignment, AlignmentConfig, AlignmentResult, align_agents,
-                                     no_alignment)
+from mapping.alignment.align import AgentAlignment, AlignmentResult, align_agents, no_alignment
+from mapping.alignment.config import AlignmentConfig
 from mapping.alignment.graph import Cluster, InstanceCollaborativeGraph, Node
 from mapping.alignment.oracle import id_consistency, id_purity, oracle_alignment
 from mapping.alignment.overlap import iob, iou, message_bytes, voxel_downsample

@@ -13,7 +13,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mapping.alignment.align import AlignmentConfig, AlignmentResult, align_agents, no_alignment
+from mapping.alignment.align import AlignmentResult, align_agents, no_alignment
+from mapping.alignment.config import AlignmentConfig
 from mapping.alignment.oracle import oracle_alignment
 from mapping.data import Frame
 from mapping.perception.types import FrameSegmentation, FusionResult

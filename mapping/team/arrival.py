@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from mapping.alignment.align import AlignmentConfig
+from mapping.alignment.config import AlignmentConfig
 from mapping.alignment.graph import InstanceCollaborativeGraph
 
 
