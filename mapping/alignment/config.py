@@ -1,8 +1,8 @@
 """Options of the Cross-Agent Instance Alignment (paper, sec. III-C): thresholds and sizes.
 
 Shared by the online alignment on arrival (``mapping.team.arrival``), which applies the Instance
-Collaborative Graph's edge rules, and by the batch alignment (``align``), which also splits
-under-segmented instances.
+Collaborative Graph's edge rules, and by the batch alignment beside its benchmark
+(``benchmarks.batch_alignment``), which also splits under-segmented instances.
 """
 
 from __future__ import annotations

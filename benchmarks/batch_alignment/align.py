@@ -1,4 +1,4 @@
-"""Cross-agent instance alignment (paper, sec. III-C): the entry point and its result.
+"""Batch cross-agent instance alignment (paper, sec. III-C): the entry point and its result.
 
 ``align_agents`` runs the whole module on the agents' fused instances:
 exchange (down-sampled clouds, bytes counted) -> Instance Collaborative Graph -> split the
@@ -8,6 +8,12 @@ Global ids are dense from 1, the same for all agents: clusters sorted by their r
 (agent, local id, part). The result is injective: each agent's corrected instances are keyed by global
 id (over-segmented pieces merged into one), and a global id names one cluster, i.e. one physical
 object, in every agent. ``no_alignment`` is the ablation without cross-agent alignment.
+
+Batch: every agent's fused instances of all its frames are aligned at once. Only the alignment
+benchmark (``benchmarks/bench_alignment.py``) and its tests run it, so it sits beside that benchmark;
+the team aligns online, as each peer's instances arrive (``mapping.team.arrival``), with the same
+options (``mapping.alignment.config``) and the same Instance Collaborative Graph
+(``mapping.alignment.graph``).
 """
 
 from __future__ import annotations
@@ -19,14 +25,15 @@ from typing import Iterable, Sequence
 
 import numpy as np
 
+from benchmarks.batch_alignment.corrections import (LabelFunction, MaskRelabeller, corrected_instance,
+                                                    find_under_segmented, nearest_piece, split_points)
+from benchmarks.batch_alignment.messages import message_bytes
 from mapping.alignment.config import AlignmentConfig
-from mapping.alignment.corrections import (LabelFunction, MaskRelabeller, corrected_instance,
-                                           find_under_segmented, nearest_piece, split_points)
 from mapping.alignment.graph import Cluster, InstanceCollaborativeGraph, Node
-from mapping.alignment.overlap import message_bytes, voxel_downsample
 from mapping.data.frame import Frame
 from mapping.perception.codebook import CodeBook, CodeBookEntry
 from mapping.perception.types import AgentInstance, FrameSegmentation, FusionResult
+from mapping.pointcloud import voxel_downsample
 
 
 @dataclass
