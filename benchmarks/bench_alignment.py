@@ -3,7 +3,8 @@
 For every scene: the world's frames go through the simulated front end (segmenter with the seeded error
 model, captioner, SBERT, cross-frame fusion per agent); then three alignments of the same fused
 instances: ``none`` (each agent alone), ``paper`` (Cross-Agent Instance Alignment) and ``oracle``
-(ground-truth ids). Reported per scene and alignment:
+(ground-truth ids). Front end and alignments are the batch ones in ``benchmarks/batch_alignment/``
+(every frame first, then one alignment), not the team's online path. Reported per scene and alignment:
 
 - id consistency: share of ground-truth instances seen by two or more agents that carry one global id
   across those agents (target >= 95 % for ``paper``); and id purity, the share of global ids whose
@@ -22,6 +23,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import sys
 import time
 from dataclasses import asdict, replace
 from pathlib import Path
@@ -29,15 +31,17 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from mapping.alignment import ALIGNMENT_MODES, align_team, id_consistency, id_purity, labelled_points
-from mapping.evaluate.semantic import score_semantics
-from mapping.perception import shared_text_encoder
-from mapping.perception.errors import SegmentationErrorConfig
-from openmulti_env.presets import world_config
-from mapping.pipeline.records import write_json_atomic
-from openmulti_env.team_perception import FrontEndConfig, perceive_team
-from openmulti_env.world.semantics import category_vocabulary, semantic_ground_truth
-from openmulti_env.world import World
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # benchmarks.batch_alignment, run as a script
+from benchmarks.batch_alignment import (ALIGNMENT_MODES, align_team, id_consistency, id_purity,  # noqa: E402
+                                        labelled_points)
+from benchmarks.batch_alignment.front_end import FrontEndConfig, perceive_team  # noqa: E402
+from mapping.evaluate.semantic import score_semantics  # noqa: E402
+from mapping.perception import shared_text_encoder  # noqa: E402
+from mapping.perception.errors import SegmentationErrorConfig  # noqa: E402
+from mapping.pipeline.records import write_json_atomic  # noqa: E402
+from openmulti_env.presets import world_config  # noqa: E402
+from openmulti_env.world import World  # noqa: E402
+from openmulti_env.world.semantics import category_vocabulary, semantic_ground_truth  # noqa: E402
 
 PRESETS = ("room0", "room1", "room2", "office0", "office1", "office2", "office3", "office4")
 

@@ -1,4 +1,5 @@
-"""Cross-agent instance alignment (sec. III-C) on hand-made clouds, FusionResults and frames."""
+"""Cross-agent instance alignment (sec. III-C) on hand-made clouds, FusionResults and frames: the overlap
+and graph of ``mapping.alignment`` and the batch alignment of ``benchmarks.batch_alignment``."""
 
 from __future__ import annotations
 
@@ -8,11 +9,13 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from mapping.alignment import (AlignmentConfig, align_agents, id_consistency, iob, iou, no_alignment,
-                               oracle_alignment, voxel_downsample)
-from mapping.alignment.overlap import directed_overlap_count, instance_message_bytes, pairwise_overlap_counts
+from benchmarks.batch_alignment import align_agents, id_consistency, id_purity, no_alignment, oracle_alignment
+from benchmarks.batch_alignment.messages import instance_message_bytes
+from mapping.alignment import AlignmentConfig, InstanceCollaborativeGraph, iob, iou
+from mapping.alignment.overlap import directed_overlap_count, pairwise_overlap_counts
 from mapping.data.frame import Frame, Intrinsics
 from mapping.perception.types import AgentInstance, FrameSegmentation, FusionResult, Segment
+from mapping.pointcloud import voxel_downsample
 
 
 @pytest.fixture(scope="session")
@@ -383,8 +386,6 @@ def test_partial_views_sharing_a_strip_join_when_their_captions_agree():
 
 
 def test_id_purity_drops_when_alignment_glues_two_objects():
-    from mapping.alignment import id_purity
-
     rng = np.random.default_rng(0)
     box = box_surface([0, 0, 0], [0.3, 0.3, 0.3], rng)
     other = box_surface([2, 0, 0], [0.3, 0.3, 0.3], rng)
@@ -410,7 +411,6 @@ def test_a_picture_flat_on_a_wall_keeps_its_own_id():
     result = align_agents(fused)
     a0, a1 = result.agents["agent_0"].local_to_global, result.agents["agent_1"].local_to_global
     assert a0[1] == a1[1] != a1[2]
-    from mapping.alignment import InstanceCollaborativeGraph
 
     clouds = {("agent_0", 1, 0): voxel_downsample(wall, 0.02), ("agent_1", 2, 0): voxel_downsample(picture, 0.02)}
     features = {("agent_0", 1, 0): fused["agent_0"].instances[1].caption_feature,

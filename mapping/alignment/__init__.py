@@ -1,21 +1,15 @@
-"""Cross-agent instance alignment (paper, sec. III-C).
+"""Cross-agent instance alignment (paper, sec. III-C): what the team's alignment on arrival
+(``mapping.team.arrival``) and the fusion's instance confidence need.
 
-``align_agents`` is the entry point: exchange of down-sampled instance clouds (``overlap``), the
-Instance Collaborative Graph (``graph``), the three corrections (``corrections``); ``no_alignment``
-and ``oracle_alignment`` give the ablation and the ground-truth upper bound with the same result type;
-``align_team`` picks one of the three by name for a whole team's perception (``team_alignment``).
-The instance confidence of eq. 1-2 lives in ``confidence``.
+The options (``config``), the overlap of two instance clouds, IoU / IoB of eq. 3-4 (``overlap``), the
+Instance Collaborative Graph (``graph``), and the instance confidence of eq. 1-2 (``confidence``).
+The batch alignment of a whole team's fused instances (split / merge corrections, corrected masks, the
+ground-truth oracle) is reached only from ``benchmarks/bench_alignment.py`` and lives beside it, in
+``benchmarks.batch_alignment``.
 """
 
-from mapping.alignment.align import (AgentAlignment, AlignmentConfig, AlignmentResult, align_agents,
-                                     no_alignment)
+from mapping.alignment.config import AlignmentConfig
 from mapping.alignment.graph import Cluster, InstanceCollaborativeGraph, Node
-from mapping.alignment.oracle import id_consistency, id_purity, oracle_alignment
-from mapping.alignment.overlap import iob, iou, message_bytes, voxel_downsample
-from mapping.alignment.team_alignment import ALIGNMENT_MODES, TeamPerception, align_team, labelled_points
+from mapping.alignment.overlap import iob, iou
 
-__all__ = [
-    "ALIGNMENT_MODES", "AgentAlignment", "AlignmentConfig", "AlignmentResult", "Cluster", "InstanceCollaborativeGraph",
-    "Node", "TeamPerception", "align_agents", "align_team", "id_consistency", "id_purity", "iob", "iou",
-    "labelled_points", "message_bytes", "no_alignment", "oracle_alignment", "voxel_downsample",
-]
+__all__ = ["AlignmentConfig", "Cluster", "InstanceCollaborativeGraph", "Node", "iob", "iou"]

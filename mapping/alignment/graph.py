@@ -15,8 +15,9 @@ but different objects overlap along a contact line only (IoB of a few %), and tw
 of one kind rarely share a strip; a semantic error blocks only this weaker edge, never the paper's.
 
 A vertex is a ``Node`` = (agent, local_id, part): part 0 is a whole local instance; parts 1, 2, ...
-are the pieces an under-segmented instance was split into (see ``corrections``), so the graph can
-replace a vertex by its pieces and cluster again.
+are the pieces an under-segmented instance was split into (by the batch alignment,
+``benchmarks.batch_alignment.corrections``), so the graph can replace a vertex by its pieces and
+cluster again.
 """
 
 from __future__ import annotations

@@ -1,9 +1,10 @@
-"""What agents exchange for alignment, and the spatial overlap of two instance clouds (eq. 3-4).
+"""The spatial overlap of two instance clouds (eq. 3-4), on which the Instance Collaborative Graph's
+edges rest.
 
 Each agent voxel down-samples every instance cloud before sending it (paper, sec. III-C: "high
-precision is not required"), so the message is small; ``message_bytes`` counts what a real message
-carries. A point of cloud A *overlaps* cloud B when its nearest neighbour in B lies within
-``radius_m`` (distance <= radius). Then, with |A n B| read as the number of A's points that overlap B:
+precision is not required"), so the message is small. A point of cloud A *overlaps* cloud B when its
+nearest neighbour in B lies within ``radius_m`` (distance <= radius). Then, with |A n B| read as the
+number of A's points that overlap B:
 
     IoB(A, B) = |A n B| / |A|                  (eq. 4; the bound is A's own cloud, so it is directed)
     IoU(A, B) = |A n B| / (|A| + |B| - |A n B|)  (eq. 3)
@@ -27,13 +28,7 @@ from typing import Sequence
 import numpy as np
 from scipy.spatial import cKDTree
 
-from mapping.perception.types import AgentInstance
-from mapping.pointcloud import check_points, voxel_downsample
-
-FLOAT32_BYTES = 4
-"""xyz, features and confidence travel as float32."""
-ID_BYTES = 4
-"""The local instance id travels as int32."""
+from mapping.pointcloud import check_points
 
 
 def directed_overlap_count(a: np.ndarray, b: np.ndarray, radius_m: float) -> int:
@@ -120,24 +115,3 @@ def _count_unique(point: np.ndarray, owner: np.ndarray, other: np.ndarray, out: 
     key = np.unique(point * n_other + other)
     p, o = np.divmod(key, n_other)
     np.add.at(out, (owner[p], o), 1)
-
-
-def instance_message_bytes(n_points: int, caption_dim: int, visual_dim: int | None) -> int:
-    """Bytes of one instance in an alignment message.
-
-    float32 xyz per point + the caption feature + the visual feature when present + the confidence
-    (float32) + the local id (int32).
-    """
-    features = caption_dim + (visual_dim or 0)
-    return FLOAT32_BYTES * (3 * n_points + features + 1) + ID_BYTES
-
-
-def message_bytes(instances: Sequence[AgentInstance], clouds: Sequence[np.ndarray]) -> int:
-    """Bytes of one agent's whole alignment message: its instances with their down-sampled clouds."""
-    if len(instances) != len(clouds):
-        raise ValueError(f"{len(instances)} instances but {len(clouds)} clouds")
-    total = 0
-    for inst, cloud in zip(instances, clouds):
-        visual = None if inst.visual_feature is None else int(np.asarray(inst.visual_feature).size)
-        total += instance_message_bytes(len(cloud), int(np.asarray(inst.caption_feature).size), visual)
-    return total

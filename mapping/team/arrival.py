@@ -16,7 +16,8 @@ becomes one of:
 The reference of eq. 1-2 (the more confident side) decides the meaning: a matched instance whose peer
 is more confident takes the peer's caption and feature (``take_meaning``). Under-segmentation on my
 side is left to the peer: when it receives my two pieces it matches both to its coarse instance; the
-online path does not split masks (the batch ``align_agents`` does).
+online path does not split masks (the batch ``align_agents`` beside the alignment benchmark,
+``benchmarks.batch_alignment``, does).
 """
 
 from __future__ import annotations
@@ -25,7 +26,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from mapping.alignment.align import AlignmentConfig
+from mapping.alignment.config import AlignmentConfig
 from mapping.alignment.graph import InstanceCollaborativeGraph
 
 

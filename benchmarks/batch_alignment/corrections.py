@@ -16,6 +16,9 @@ semantic features" when merging; that is not used, because its own under-segment
 cups side by side) has similar captions too.
 
 Split must happen before clustering, or the coarse instance would glue its pieces' clusters together.
+
+Used by the batch ``align_agents`` (``align``) and the oracle (``oracle``), beside the alignment
+benchmark: the team's online alignment (``mapping.team.arrival``) merges pieces but never splits masks.
 """
 
 from __future__ import annotations

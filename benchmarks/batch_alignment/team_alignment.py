@@ -1,8 +1,9 @@
 """A team's perception (every agent's frames, masks and fused instances) aligned by mode, and its
 corrected masks as a labelled point map, which scores an alignment without the neural map.
 
-Nothing here needs a simulator: ``openmulti_env.team_perception`` fills a :class:`TeamPerception`
-from a simulated world; any source of frames, segmentations and fusion results can.
+Nothing here needs a simulator: ``front_end.perceive_team`` fills a :class:`TeamPerception` from a
+simulated world; any source of frames, segmentations and fusion results can. The alignment benchmark
+(``benchmarks/bench_alignment.py``) is its only user, so it sits beside it.
 
 No PettingZoo, Gymnasium, pyrender or ``openmulti_env`` imports here.
 """
@@ -13,8 +14,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mapping.alignment.align import AlignmentConfig, AlignmentResult, align_agents, no_alignment
-from mapping.alignment.oracle import oracle_alignment
+from benchmarks.batch_alignment.align import AlignmentResult, align_agents, no_alignment
+from benchmarks.batch_alignment.oracle import oracle_alignment
+from mapping.alignment.config import AlignmentConfig
 from mapping.data import Frame
 from mapping.perception.types import FrameSegmentation, FusionResult
 

@@ -1,21 +1,23 @@
-"""The open-vocabulary front end of a simulated team: segment -> caption -> encode -> fuse per agent,
-and the semantic ground truth and vocabulary of a simulated world.
+"""The offline open-vocabulary front end of a simulated team: segment -> caption -> encode -> fuse,
+every frame of every agent at once (``perceive_team``, options in ``FrontEndConfig``).
 
-This is the glue between the simulated world and ``mapping``'s perception and fusion; what needs no
-world lives in ``mapping``: aligning the team's instances by mode and its labelled point maps in
-``mapping.alignment.team_alignment``, semantic scoring in ``mapping.evaluate.semantic``. Run order
-(the paper's, sec. III-B/C): each agent segments and fuses all its frames, then the agents that
-exchange instance point clouds align them, and the mapper trains on the corrected masks.
+This is the glue between the simulated world and ``mapping``'s perception and fusion that feeds the
+batch alignment: aligning the team's instances by mode and its labelled point maps are in
+``team_alignment``, semantic scoring in ``mapping.evaluate.semantic``, the world's semantic ground
+truth and vocabulary in ``openmulti_env.world.semantics``. Run order (the paper's, sec. III-B/C): each
+agent segments and fuses all its frames, then the agents that exchange instance point clouds align
+them. Only the alignment benchmark (``benchmarks/bench_alignment.py``) runs the team this way, so this
+sits beside it; team runs perceive, fuse and align online, round by round (``mapping.team``).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-import numpy as np
 from tqdm import tqdm
 
-from mapping.alignment import AlignmentConfig, TeamPerception
+from benchmarks.batch_alignment.team_alignment import TeamPerception
+from mapping.alignment import AlignmentConfig
 from mapping.fusion import FusionConfig, fuse_frames
 from mapping.perception import TextEncoder, shared_text_encoder
 from mapping.perception.errors import SegmentationErrorConfig

@@ -2,6 +2,7 @@
 
 Both read ``source_ids`` (the simulator's ground truth carried on instances and segments), which the
 method never does. ``source_ids[0]`` is the dominant ground-truth object of an instance or a mask.
+Beside the alignment benchmark, which scores ``align_agents`` against them; team runs have no oracle.
 """
 
 from __future__ import annotations
@@ -11,8 +12,8 @@ from typing import Sequence
 
 import numpy as np
 
-from mapping.alignment.align import AgentAlignment, AlignmentResult
-from mapping.alignment.corrections import corrected_instance
+from benchmarks.batch_alignment.align import AgentAlignment, AlignmentResult
+from benchmarks.batch_alignment.corrections import corrected_instance
 from mapping.data.frame import Frame
 from mapping.perception.codebook import CodeBook, CodeBookEntry
 from mapping.perception.types import AgentInstance, FrameSegmentation, FusionResult

@@ -1,4 +1,4 @@
-"""The simulated team's front end end to end on the tiny world: perceive, align, score semantics."""
+"""The batch alignment's simulated front end end to end on the tiny world: perceive, align, score semantics."""
 
 from __future__ import annotations
 
@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from mapping.alignment import align_team, labelled_points
+from benchmarks.batch_alignment import align_team, labelled_points
+from benchmarks.batch_alignment.front_end import FrontEndConfig, perceive_team
 from mapping.evaluate.semantic import score_semantics
 from mapping.perception.errors import SegmentationErrorConfig
-from openmulti_env.team_perception import FrontEndConfig, perceive_team
 from openmulti_env.world.semantics import category_vocabulary, semantic_ground_truth
 
 
