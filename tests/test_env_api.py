@@ -82,7 +82,8 @@ def test_pickles(when, tmp_path):
     obs, _ = copy.reset(seed=5)
     again, _ = parallel_env(preset="rl_tiny", cache_dir=str(tmp_path)).reset(seed=5)
     for a in obs:
-        np.testing.assert_array_equal(obs[a], again[a])
+        for key in obs[a]:
+            np.testing.assert_array_equal(obs[a][key], again[a][key])
     aec = pickle.loads(pickle.dumps(env(preset="rl_tiny", cache_dir=str(tmp_path))))
     aec.reset(seed=1)
     assert aec.agent_selection == "agent_0"

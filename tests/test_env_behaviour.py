@@ -10,7 +10,7 @@ from openmulti_env import parallel_env
 from openmulti_env.environment.actions import ActionError
 from openmulti_env.environment.config import FIELD_NAMES
 from openmulti_env.environment import INFO_KEYS
-from openmulti_env.environment.observation import OBSERVATION_CHANNELS
+from policies.observation import MAP_CHANNELS, agent_feature
 from openmulti_env.world.cache import WorldCacheWarning, clear_world_cache, world_cache_dir
 
 
@@ -36,8 +36,10 @@ def _assert_same_episode(a_trace, b_trace):
         for x, y in zip(a, b):
             assert x.keys() == y.keys()
             for agent in x:
-                if isinstance(x[agent], np.ndarray):
-                    np.testing.assert_array_equal(x[agent], y[agent])
+                if isinstance(x[agent], dict) and isinstance(next(iter(x[agent].values())), np.ndarray):
+                    assert x[agent].keys() == y[agent].keys()
+                    for key in x[agent]:
+                        np.testing.assert_array_equal(x[agent][key], y[agent][key])
                 else:
                     assert x[agent] == y[agent]
 
@@ -117,7 +119,7 @@ def test_infos_rewards_and_budget(cache):
             assert rewards[a] == pytest.approx(info["completion_gain"] / 100 - penalty)
             refused_seen |= info["messages_refused"] > 0
             total_reward += rewards[a]
-            assert obs[a][..., OBSERVATION_CHANNELS.index("budget_left")].max() <= 255
+            assert agent_feature(obs[a], "budget_left") == pytest.approx(info["budget_left_mb"] / 0.02, abs=1e-6)
     assert refused_seen, "a 20 kB budget must run out on tiny"
     assert all(info["bytes_sent_total"] <= 0.02e6 for info in infos.values())
 
@@ -142,9 +144,9 @@ def test_silence_sends_nothing_and_receives_nothing(cache):
     for a in infos:
         assert infos[a]["bytes_sent_total"] == 0 and infos[a]["instances_received"] == 0
         assert infos[a]["budget_left_mb"] == float("inf")
-        assert obs[a][..., OBSERVATION_CHANNELS.index("received")].max() == 0
-        assert obs[a][..., OBSERVATION_CHANNELS.index("peer_poses")].max() == 0
-        assert (obs[a][..., OBSERVATION_CHANNELS.index("budget_left")] == 255).all()
+        assert obs[a]["map"][..., MAP_CHANNELS.index("received")].max() == 0
+        assert obs[a]["map"][..., MAP_CHANNELS.index("peer_poses")].max() == 0
+        assert agent_feature(obs[a], "budget_left") == 1.0
         assert infos[a]["completion_ratio"] > 5.0  # each agent maps its own part
 
 
@@ -154,16 +156,16 @@ def test_talking_fills_the_received_and_peer_channels(cache):
     for _ in range(4):
         obs, _, _, _, infos = e.step({a: np.ones(2, np.int8) for a in e.agents})
     for a in obs:
-        assert obs[a][..., OBSERVATION_CHANNELS.index("received")].max() == 255
-        assert obs[a][..., OBSERVATION_CHANNELS.index("peer_poses")].max() == 255
-        own = obs[a][..., OBSERVATION_CHANNELS.index("own_path")]
+        assert obs[a]["map"][..., MAP_CHANNELS.index("received")].max() == 255
+        assert obs[a]["map"][..., MAP_CHANNELS.index("peer_poses")].max() == 255
+        own = obs[a]["map"][..., MAP_CHANNELS.index("own_path")]
         assert (own == 255).sum() == 1 and (own == 128).sum() >= 1
-        assert obs[a][..., OBSERVATION_CHANNELS.index("observed")].mean() > 0
-        assert obs[a][..., OBSERVATION_CHANNELS.index("map_coverage")].max() > 0
+        assert obs[a]["map"][..., MAP_CHANNELS.index("observed")].mean() > 0
+        assert obs[a]["map"][..., MAP_CHANNELS.index("map_height")].max() > 0
         assert infos[a]["bytes_received"] > 0
     state = e.state()
     assert state.shape == e.state_space.shape and e.state_space.contains(state)
-    np.testing.assert_array_equal(state[..., :len(OBSERVATION_CHANNELS)], obs["agent_0"])
+    np.testing.assert_array_equal(state[..., :len(MAP_CHANNELS)], obs["agent_0"]["map"])
 
 
 def test_render_shows_every_agent_and_the_team_panel(cache):

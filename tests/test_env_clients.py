@@ -21,7 +21,7 @@ def test_supersuit_and_stable_baselines3_ppo_train_on_tiny(cache):
 
     vec = sb3_vec_env(parallel_env(preset="rl_tiny", cache_dir=cache))
     assert vec.num_envs == 2  # one entry per agent
-    model = sb3.PPO("CnnPolicy", vec, n_steps=16, batch_size=16, n_epochs=1, device="cpu", verbose=0)
+    model = sb3.PPO("MultiInputPolicy", vec, n_steps=16, batch_size=16, n_epochs=1, device="cpu", verbose=0)
     before = [p.detach().clone() for p in model.policy.parameters()]
     model.learn(total_timesteps=32)
     assert model.num_timesteps >= 32
@@ -39,5 +39,6 @@ def test_torchrl_wrapper_passes_check_env_specs(cache):
     wrapped = PettingZooWrapper(parallel_env(preset="rl_tiny", cache_dir=cache), seed=0)
     check_env_specs(wrapped)
     rollout = wrapped.rollout(3)
-    assert rollout["agent", "observation"].shape[-3:] == (48, 48, 7)
+    assert rollout["agent", "observation", "map"].shape[-3:] == (48, 48, 6)
+    assert rollout["agent", "observation", "comm"].shape[-1] == 10
     assert rollout["next", "agent", "info", "completion_ratio"].shape == (3, 2)

@@ -94,6 +94,9 @@ class ExchangeConfig:
     changed_only: float | None = None
     """Skip an instance whose parameters moved less than this (relative L2) since they last reached
     that peer; None sends every instance every time."""
+    up_to_date_tolerance: float = 0.05
+    """A peer holds an instance up to date while its parameters moved less than this (relative L2) since
+    they reached it (``AgentSnapshot.links``: what an agent knows of its peers' copies)."""
     cloud_voxel_m: float = 0.02
     """Voxel of the clouds sent for alignment."""
     resend_cloud_growth: float = 2.0

@@ -31,7 +31,7 @@ from mapping.team.global_map import as_global_image, global_entry
 from mapping.team.inbox import Inbox
 from mapping.team.messages import InstancePayload
 from mapping.team.outbox import Outbox
-from mapping.team.report import AgentSnapshot, PeerKnowledge
+from mapping.team.report import AgentSnapshot, LinkState, PeerKnowledge
 
 
 class AgentStream(Protocol):
@@ -103,6 +103,7 @@ class TeamMember(Outbox, Inbox, Agreement):
         self.peer_positions: dict[int, tuple[int, np.ndarray]] = {}  # peer -> (round, (3,) position) from its rays
         self._shadow: dict[int, tuple[int, list, list]] = {}
         self._unacknowledged: dict[int, tuple[dict, dict]] = {}  # receiver -> bookkeeping of the message in flight
+        self.delivered_round: dict[str, dict[int, int]] = {"params": {}, "rays": {}, "points": {}}  # kind -> peer -> round
         self._last_position: np.ndarray | None = None
 
     @property
@@ -144,9 +145,9 @@ class TeamMember(Outbox, Inbox, Agreement):
 
     # ---- what this agent knows ---------------------------------------------------------------------
     def snapshot(self, rounds: int, new_frames: Sequence[Frame], budget_left_bytes: float,
-                 bytes_sent_total: int) -> AgentSnapshot:
+                 link_bytes: np.ndarray) -> AgentSnapshot:
         """This agent's own knowledge now (``new_frames``: what it read in the last round; the budget and
-        byte count come from its side of the channel)."""
+        the (N,) bytes it sent to each agent come from its side of the channel)."""
         peers = {}
         for peer, table in self.held.items():
             boxes = tuple((p.bound_lo, p.bound_hi) for p in table.values() if p.bank == "object")
@@ -158,8 +159,29 @@ class TeamMember(Outbox, Inbox, Agreement):
         own = sum(1 for iid in live if self.mapper.keyframes.has_pixels(iid))
         position = np.asarray(new_frames[-1].pose[:3, 3], np.float64) if new_frames else self._last_position
         self._last_position = position
+        link_bytes = np.asarray(link_bytes)
         return AgentSnapshot(self.index, rounds, self.next_frame, tuple(new_frames), position, len(live), own, peers,
-                             float(budget_left_bytes), int(bytes_sent_total))
+                             float(budget_left_bytes), int(link_bytes.sum()), links=self.link_states(link_bytes),
+                             frames_total=len(self.stream))
+
+    def link_states(self, link_bytes: np.ndarray) -> dict[int, LinkState]:
+        """Its side of the link to each peer (``link_bytes[j]``: bytes sent to j): how far each peer's copy
+        of its shareable instances is from their parameters now, and when messages last reached it."""
+        tolerance = self.config.exchange.up_to_date_tolerance
+        current = {iid: self.mapper.export_instance(iid).params for iid in self.shareable_ids()}
+        states = {}
+        for peer in (j for j in range(len(link_bytes)) if j != self.index):
+            held = self.sent_vectors.get(peer, {})
+            changes = [min(1.0, float(np.linalg.norm(p - held[iid]) / max(np.linalg.norm(held[iid]), 1e-12)))
+                       if iid in held else 1.0 for iid, p in current.items()]
+            count = max(len(changes), 1)
+            states[peer] = LinkState(
+                holds=sum(iid in held for iid in current) / count,
+                up_to_date=sum(c <= tolerance for c in changes) / count if changes else 0.0,
+                change=float(np.mean(changes)) if changes else 0.0,
+                params_round=self.delivered_round["params"].get(peer, self.delivered_round["points"].get(peer)),
+                rays_round=self.delivered_round["rays"].get(peer), bytes_sent=int(link_bytes[peer]))
+        return states
 
     # ---- outputs ---------------------------------------------------------------------------------
     def entry(self, iid: int) -> CodeBookEntry:

@@ -24,9 +24,7 @@ class Outbox:
         sent = dict(self.sent_vectors.get(receiver, {}))
         clouds = dict(self.sent_cloud_points.get(receiver, {}))
         payloads = []
-        for iid in self.mapper.live_ids():
-            if not ex.forward_adopted and not self.mapper.keyframes.has_pixels(iid):
-                continue
+        for iid in self.shareable_ids():
             inst = self.mapper.export_instance(iid)
             last = sent.get(iid)
             if ex.changed_only is not None and last is not None and iid in clouds and (
@@ -49,11 +47,21 @@ class Outbox:
         self._unacknowledged[receiver] = (sent, clouds)
         return ParameterMessage(self.index, receiver, round_index, payloads, degree)
 
-    def acknowledge(self, receiver: int, delivered: bool) -> None:
-        """The link told the sender whether its parameter message reached ``receiver`` (an
+    def shareable_ids(self) -> list[int]:
+        """The instances a parameter message carries: its own (with pixels of its own frames), and the
+        adopted ones too with ``forward_adopted``."""
+        forward = self.config.exchange.forward_adopted
+        return [iid for iid in self.mapper.live_ids() if forward or self.mapper.keyframes.has_pixels(iid)]
+
+    def acknowledge(self, receiver: int, kind: str, delivered: bool, round_index: int) -> None:
+        """The link told the sender whether its ``kind`` message reached ``receiver`` (an
         acknowledgement, not counted in bytes). Only a delivered message changes what this agent
         believes the receiver holds: a lost first message with an instance's cloud is sent again with
         its cloud next time, and changed-only sending compares with what really arrived."""
+        if delivered:
+            self.delivered_round[kind][receiver] = round_index
+        if kind != "params":
+            return
         booked = self._unacknowledged.pop(receiver, None)
         if delivered and booked is not None:
             self.sent_vectors[receiver], self.sent_cloud_points[receiver] = booked

@@ -99,6 +99,26 @@ class PeerKnowledge:
     """(round, (3,) position) of the peer from its last ray message (None: none yet)."""
 
 
+@dataclass(frozen=True)
+class LinkState:
+    """What an agent knows of its own side of the link to one peer, from the link's acknowledgements:
+    what the peer holds of its map and when it last reached it."""
+
+    holds: float
+    """Share of its shareable instances the peer holds in some version (0 with none)."""
+    up_to_date: float
+    """Share the peer holds within ``ExchangeConfig.up_to_date_tolerance`` of their parameters now."""
+    change: float
+    """Mean relative change (L2) of its shareable instances since the version the peer holds, each at most
+    1 (1 for an instance the peer lacks; 0 with no shareable instance)."""
+    params_round: int | None
+    """Round of its last parameter message that reached the peer (None: none yet)."""
+    rays_round: int | None
+    """Round of its last ray message that reached the peer (None: none yet)."""
+    bytes_sent: int
+    """Bytes it has sent to the peer over the episode (delivered or not)."""
+
+
 @dataclass
 class AgentSnapshot:
     """One agent's own knowledge after a round (never ground truth)."""
@@ -127,6 +147,10 @@ class AgentSnapshot:
     """This round."""
     messages: dict[str, int] = field(default_factory=lambda: dict.fromkeys(DELIVERY_STATUSES, 0))
     """Its own messages of this round by status (delivered, dropped, over_budget)."""
+    links: dict[int, LinkState] = field(default_factory=dict)
+    """Its side of the link to every peer."""
+    frames_total: int = 0
+    """Frames on its path (it knows the path it was given)."""
 
     @property
     def name(self) -> str:

@@ -37,6 +37,7 @@ def member_state(m: TeamMember) -> dict:
         "sent_cloud_points": {int(p): {int(i): int(v) for i, v in t.items()} for p, t in m.sent_cloud_points.items()},
         "duals": {k: v.cpu() for k, v in m.duals.items()},
         "peer_positions": {int(k): [int(r), torch.as_tensor(x)] for k, (r, x) in m.peer_positions.items()},
+        "delivered_round": {kind: {int(p): int(r) for p, r in t.items()} for kind, t in m.delivered_round.items()},
     }
 
 
@@ -56,4 +57,6 @@ def restore_member(m: TeamMember, s: dict) -> None:
     m.sent_cloud_points = {int(p): dict(t) for p, t in s["sent_cloud_points"].items()}
     m.duals = {k: v.to(m.mapper.device) for k, v in s["duals"].items()}
     m.peer_positions = {int(k): (int(r), x.numpy()) for k, (r, x) in s.get("peer_positions", {}).items()}
+    m.delivered_round.update({kind: {int(p): int(r) for p, r in t.items()}
+                              for kind, t in s.get("delivered_round", {}).items()})
     m._shadow = {}

@@ -151,8 +151,7 @@ class Team:
                         messages.append(ray)
                 for message in messages:
                     d = self.channel.transmit(message)
-                    if d.kind == "params":
-                        self.members[i].acknowledge(j, d.status == DELIVERED)
+                    self.members[i].acknowledge(j, d.kind, d.status == DELIVERED, t)
                     deliveries.append(DeliveryRecord(i, j, d.kind, d.status, d.bytes))
                     if d.status == DELIVERED and d.kind != "points":  # clouds are counted, not learned from
                         (params_in if d.kind == "params" else rays_in)[j].append(d.message)
@@ -195,7 +194,7 @@ class Team:
         """Each agent's own knowledge now (``new_frames[i]``: the frames agent i read in the last round;
         none when not given, e.g. before the first round)."""
         return [m.snapshot(self.round_index, new_frames[m.index] if new_frames is not None else (),
-                           self.channel.budget_left(m.index), int(self.channel.bytes_sent[m.index]))
+                           self.channel.budget_left(m.index), self.channel.link_bytes[m.index])
                 for m in self.members]
 
     def surface_coverage(self, points: np.ndarray, normals: np.ndarray) -> list[np.ndarray]:
@@ -204,6 +203,13 @@ class Team:
         from mapping.evaluate.probe import surface_probe_coverage  # noqa: PLC0415
 
         return self.each_member(lambda m: surface_probe_coverage(m.mapper, points, normals))
+
+    def column_maps(self, grid) -> list:
+        """Per agent, its own map read on the columns of ``grid`` (``mapping.topdown.column_map``): what an
+        agent's observation may show of its map. Runs on the worker threads."""
+        from mapping.topdown import column_map  # noqa: PLC0415
+
+        return self.each_member(lambda m: column_map(m.mapper, grid))
 
     def each_member(self, job):
         """``job(member)`` for every member, results in member order; side by side on ``workers``

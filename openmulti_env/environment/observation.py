@@ -1,19 +1,10 @@
-"""Each agent's observation: a fixed-size top-down map of its own reconstruction and what it knows.
+"""Each agent's observation, from its own knowledge only: its frames, its fields, the messages it sent and
+received. Layout and channel meanings: ``policies.observation`` (the policies read it by those names).
 
-Layout: ``(H, W, C)`` uint8 in [0, 255], channels last: SB3 takes it as an image (it transposes
-channels-last images itself), RLlib's CNN encoders want channels last, TorchRL takes any Box. Rows run
-along +y of the room, columns along +x; the room's floor box fills the square with a margin, aspect
-kept. The channels (``OBSERVATION_CHANNELS``):
-
-0. ``map_height``: the highest point of the agent's map per cell (top of the room = 255), read where its
-   fields reproduce the probed surface samples (``mapping.evaluate.probe``; the ceiling left out);
-1. ``map_coverage``: share of the cell's probed surface samples its map reproduces;
-2. ``observed``: cells its own depth frames have hit (its own coverage, whatever it learned);
-3. ``received``: footprints of the instance boxes it holds from peers (parameters received);
-4. ``own_path``: its path so far (128) and its current position (255);
-5. ``peer_poses``: peers' last known positions, from the ray messages it received (255, fading by 32
-   per step since);
-6. ``budget_left``: the share of its byte budget left, as a constant plane (255 with no budget).
+``map`` is built here from the agent's snapshot (``mapping.team.AgentSnapshot``) and its own fields read on
+a fixed voxel grid over the room's box (``mapping.topdown``); ``comm`` from the snapshot's per-peer link
+state. Ground truth never enters: ``ProbeRaster`` (the share of the observable ground-truth surface each
+cell's samples an agent's map reproduces) feeds ``state()`` for centralised critics only.
 """
 
 from __future__ import annotations
@@ -22,8 +13,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-OBSERVATION_CHANNELS = ("map_height", "map_coverage", "observed", "received", "own_path", "peer_poses",
-                        "budget_left")
+from mapping.team import AgentSnapshot
+from mapping.topdown import ColumnGrid, ColumnMap
+from policies.observation import AGENT_FEATURES, LINK_FEATURES, MAP_CHANNELS, age_feature
+
+OBSERVATION_CHANNELS = MAP_CHANNELS
 DEPTH_STRIDE = 4
 """Every this many pixels (both ways) of a depth frame marks the ``observed`` channel."""
 
@@ -50,6 +44,13 @@ class TopDownGrid:
         inside = np.all((ij >= 0) & (ij < self.size), axis=1)
         return ij[:, 1], ij[:, 0], inside  # row = y, col = x
 
+    def column_grid(self, room_height_m: float, step_m: float = 0.05, ceiling_gap_m: float = 0.15) -> ColumnGrid:
+        """Voxel centres over the grid's cells from just under the floor to ``ceiling_gap_m`` under the room's
+        height, ``step_m`` apart (seen from above, the ceiling would cover the room)."""
+        centres = self.origin_xy[:, None] + (np.arange(self.size) + 0.5) * self.cell_m
+        zs = np.arange(-0.02, max(room_height_m - ceiling_gap_m, 0.0), step_m)
+        return ColumnGrid(centres[0], centres[1], zs)
+
     def flat(self, xy: np.ndarray) -> np.ndarray:
         """Flat cell indices of the points that fall on the grid."""
         rows, cols, inside = self.cells(xy)
@@ -66,29 +67,24 @@ class TopDownGrid:
 
 
 class ProbeRaster:
-    """The surface probes' cells, computed once per world: turns per-probe coverage into the two map
-    channels. Probes on the ceiling (``hidden``) stay out: seen from above it would cover the room."""
+    """The observable ground-truth surface samples' cells, computed once per world: turns which samples an
+    agent's map reproduces into a per-cell share, for ``state()`` (centralised critics) only. Samples on the
+    ceiling (``hidden``) stay out: seen from above it would cover the room."""
 
-    def __init__(self, grid: TopDownGrid, points: np.ndarray, room_height_m: float,
-                 hidden: np.ndarray | None = None):
+    def __init__(self, grid: TopDownGrid, points: np.ndarray, hidden: np.ndarray | None = None):
         self.grid = grid
         rows, cols, inside = grid.cells(points)
         if hidden is not None:
             inside = inside & ~np.asarray(hidden, bool)
         self.keep = inside
         self.flat = rows[inside] * grid.size + cols[inside]
-        self.height = np.clip(points[inside, 2] / max(room_height_m, 1e-6), 0, 1)
         self.count = np.bincount(self.flat, minlength=grid.size ** 2).astype(np.float64)
 
-    def channels(self, covered: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(H, W) uint8 ``map_height`` and ``map_coverage`` of a (P,) coverage vector."""
+    def coverage(self, covered: np.ndarray) -> np.ndarray:
+        """(H, W) uint8: share of the cell's samples that ``covered`` (P,) marks."""
         hit = np.asarray(covered, bool)[self.keep]
-        n = self.grid.size ** 2
-        height = np.zeros(n)
-        np.maximum.at(height, self.flat[hit], self.height[hit])
-        share = np.bincount(self.flat[hit], minlength=n) / np.maximum(self.count, 1)
-        side = (self.grid.size, self.grid.size)
-        return _u8(height).reshape(side), _u8(share).reshape(side)
+        share = np.bincount(self.flat[hit], minlength=self.grid.size ** 2) / np.maximum(self.count, 1)
+        return _u8(share).reshape(self.grid.size, self.grid.size)
 
 
 class AgentObservation:
@@ -105,14 +101,44 @@ class AgentObservation:
             self.observed.reshape(-1)[self.grid.flat(frame.backproject(stride=DEPTH_STRIDE))] = 255
             self.path.reshape(-1)[self.grid.flat(frame.pose[None, :3, 3])] = 128
 
-    def assemble(self, map_height: np.ndarray, map_coverage: np.ndarray, received: np.ndarray,
-                 position: np.ndarray | None, peers: np.ndarray, budget_share: float) -> np.ndarray:
-        """The (H, W, 7) uint8 observation (channel order ``OBSERVATION_CHANNELS``)."""
+    def assemble(self, columns: ColumnMap | None, room_height_m: float, received: np.ndarray,
+                 position: np.ndarray | None, peers: np.ndarray) -> np.ndarray:
+        """The (H, W, 6) uint8 ``map`` (channel order ``MAP_CHANNELS``); ``columns`` None: an empty map."""
         path = self.path.copy()
         if position is not None:
             path.reshape(-1)[self.grid.flat(np.asarray(position)[None])] = 255
-        budget = np.full_like(path, _u8(np.asarray(budget_share)))
-        return np.stack([map_height, map_coverage, self.observed.copy(), received, path, peers, budget], axis=-1)
+        height, decided = map_planes(columns, room_height_m, self.grid.size)
+        return np.stack([height, decided, self.observed.copy(), received, path, peers], axis=-1)
+
+
+def map_planes(columns: ColumnMap | None, room_height_m: float, size: int) -> tuple[np.ndarray, np.ndarray]:
+    """``map_height`` (0: nothing; 1..255: floor to room height) and ``map_decided`` of a column map."""
+    if columns is None:
+        return np.zeros((size, size), np.uint8), np.zeros((size, size), np.uint8)
+    top = np.asarray(columns.top, np.float64)
+    scaled = np.clip(np.nan_to_num(top, nan=0.0) / max(room_height_m, 1e-6), 0.0, 1.0)
+    height = np.where(np.isnan(top), 0, 1 + np.round(scaled * 254)).astype(np.uint8)
+    return height, _u8(columns.decided)
+
+
+def comm_vector(snapshot: AgentSnapshot, num_agents: int, budget_share: float) -> np.ndarray:
+    """The ``comm`` entry: ``LINK_FEATURES`` per peer in action order, then ``AGENT_FEATURES``."""
+    rows = []
+    for peer in (j for j in range(num_agents) if j != snapshot.index):
+        link = snapshot.links.get(peer)
+        known = snapshot.peers.get(peer)
+        values = {
+            "holds": link.holds if link else 0.0, "up_to_date": link.up_to_date if link else 0.0,
+            "change": link.change if link else 1.0,
+            "since_params": age_feature(snapshot.rounds, link.params_round if link else None),
+            "since_rays": age_feature(snapshot.rounds, link.rays_round if link else None),
+            "since_received": age_feature(snapshot.rounds, known.last_parameters_round if known else None),
+            "held_from_peer": min(1.0, (known.held_instances if known else 0) / max(snapshot.instances, 1)),
+            "bytes_share": (link.bytes_sent if link else 0) / max(snapshot.bytes_sent_total, 1)}
+        rows.extend(values[name] for name in LINK_FEATURES)
+    agent = {"budget_left": budget_share, "progress": snapshot.frames_read / max(snapshot.frames_total, 1)}
+    rows.extend(agent[name] for name in AGENT_FEATURES)
+    return np.clip(np.asarray(rows, np.float32), 0.0, 1.0)
 
 
 def peer_plane(grid: TopDownGrid, known: dict[int, tuple[int, np.ndarray]], step: int) -> np.ndarray:

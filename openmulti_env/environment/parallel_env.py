@@ -10,8 +10,8 @@
 | Agents             | N = 2-8 (4 by default; preset `rl_tiny`: 2)                                 |
 | Action Shape       | (2(N-1),)                                                                  |
 | Action Values      | {0, 1}                                                                     |
-| Observation Shape  | (map_size, map_size, 7): 64x64x7 (`rl`, `fast`), 48x48x7 (`rl_tiny`), 96x96x7 (`full`) |
-| Observation Values | uint8 [0, 255]                                                             |
+| Observation      | Dict: `map` (map_size, map_size, 6) uint8 + `comm` (8(N-1)+2,) float32 in [0, 1]   |
+| Map Shape          | 64x64x6 (`rl`, `fast`), 48x48x6 (`rl_tiny`), 96x96x6 (`full`)                  |
 | State Shape        | (map_size, map_size, 7N)                                                   |
 | State Values       | uint8 [0, 255]                                                             |
 
@@ -29,12 +29,20 @@ time also a down-sampled cloud) to peer k; entry N-1+k is 1 to share its ray dir
 pixel seed, never depth) with peer k.
 
 ### Observations
-A top-down map of the room (rows +y, columns +x), channels last (`openmulti_env.environment.observation`):
-`map_height` (the agent's map's highest surface per cell where its fields reproduce the probed surface),
-`map_coverage` (share of the cell's probed surface its map reproduces), `observed` (cells its own depth
-has hit), `received` (footprints of the object instances held from peers), `own_path` (path 128,
-current position 255), `peer_poses` (peers' last positions known from their ray messages, fading with
-age), `budget_left` (constant plane: share of its budget left; 255 without a budget).
+From the agent's own knowledge only: its frames, its fields and the messages it sent and received; never
+ground truth (a test changes the world where an agent never looks and checks that its observations stay
+the same bit for bit). A `Dict` (layout and meanings in `policies.observation`, which policies read by name):
+`map`, a top-down map of the room (rows +y, columns +x, channels last): `map_height` (top of what its own
+fields hold in the column, queried on a fixed 5 cm voxel grid over the room's box, the ceiling band left
+out), `map_decided` (share of the column its fields decide), `observed` (cells its own depth has hit),
+`received` (footprints of the object instances held from peers), `own_path` (path 128, current position
+255), `peer_poses` (peers' last positions known from their ray messages, fading with age); `comm`, per
+peer in action order what its side of the link knows (`holds`, `up_to_date`, `change` of its map since
+the peer's copy, rounds since its parameters / rays last reached the peer, since the peer's parameters
+last arrived, instances held from the peer, share of its bytes spent on the peer), then `budget_left` and
+`progress` along its path. SB3 (`MultiInputPolicy`) and TorchRL take it as it is. `state()`, for
+centralised critics, is every agent's `map` followed by a ground-truth plane each (the share of the cell's
+observable-surface samples its map reproduces: the reward's view, in no observation).
 
 ### Rewards
 The completion ratio (share of the observable ground-truth surface within 5 cm of an agent's map) is
@@ -95,11 +103,11 @@ from mapping.team import Team
 from openmulti_env.environment.actions import ActionError, actions_to_plan
 from openmulti_env.environment.config import EnvConfig, env_config
 from openmulti_env.environment.render import AGENT_COLOURS, agent_tile, compose, team_panel
-from openmulti_env.environment.observation import (OBSERVATION_CHANNELS, AgentObservation, ProbeRaster, TopDownGrid, peer_plane,
-                                       received_plane)
-from openmulti_env.world.stream import world_streams, world_vocabulary
+from openmulti_env.environment.observation import (AgentObservation, ProbeRaster, TopDownGrid, comm_vector, peer_plane,
+                                                   received_plane)
 from openmulti_env.world.cache import cached_world
-from openmulti_env.world.stream import RenderCache
+from openmulti_env.world.stream import RenderCache, world_streams, world_vocabulary
+from policies.observation import MAP_CHANNELS, comm_size
 
 INFO_KEYS = ("completion_ratio", "completion_gain", "bytes_sent", "bytes_received", "bytes_sent_total",
              "budget_left_mb", "messages_delivered", "messages_dropped", "messages_refused", "instances",
@@ -136,9 +144,11 @@ class OpenMultiParallelEnv(ParallelEnv, EzPickle):
         self.possible_agents = [f"agent_{i}" for i in range(n)]
         self.agents: list[str] = []
         size = self.config.map_size
-        self._observation_space = spaces.Box(0, 255, (size, size, len(OBSERVATION_CHANNELS)), np.uint8)
+        self._observation_space = spaces.Dict({
+            "map": spaces.Box(0, 255, (size, size, len(MAP_CHANNELS)), np.uint8),
+            "comm": spaces.Box(0.0, 1.0, (comm_size(n),), np.float32)})
         self._action_space = spaces.MultiBinary(2 * (n - 1))
-        self.state_space = spaces.Box(0, 255, (size, size, len(OBSERVATION_CHANNELS) * n), np.uint8)
+        self.state_space = spaces.Box(0, 255, (size, size, (len(MAP_CHANNELS) + 1) * n), np.uint8)
         self._episode_rng, _ = seeding.np_random(seed)
         self.world = None
         self.team: Team | None = None
@@ -146,7 +156,7 @@ class OpenMultiParallelEnv(ParallelEnv, EzPickle):
         self.last_cache_hit: bool | None = None
 
     # ---- spaces (the same objects on every call) ---------------------------------------------------
-    def observation_space(self, agent: str) -> spaces.Box:
+    def observation_space(self, agent: str) -> spaces.Dict:
         self._check_agent(agent)
         return self._observation_space
 
@@ -189,6 +199,7 @@ class OpenMultiParallelEnv(ParallelEnv, EzPickle):
         self._observers = [AgentObservation(self._grid) for _ in self.agents]
         self._completion = np.zeros(len(self.agents))
         self._covered = [np.zeros(len(self._probe_points), bool) for _ in self.agents]
+        self._columns = [None] * len(self.agents)
         self._links = (np.zeros((len(self.agents),) * 2, bool),) * 2
         self._last_report = None
         observations = {a: self._observe(i) for i, a in enumerate(self.agents)}
@@ -208,7 +219,9 @@ class OpenMultiParallelEnv(ParallelEnv, EzPickle):
         size = np.asarray(self.world.scene.size_m, float)
         self._grid = TopDownGrid.around(np.zeros(2), size[:2], cfg.map_size)
         ceiling = [inst.instance_id for inst in self.world.scene.instances if inst.category == "ceiling"]
-        self._probes = ProbeRaster(self._grid, points, float(size[2]), hidden=np.isin(ids, ceiling))
+        self._probes = ProbeRaster(self._grid, points, hidden=np.isin(ids, ceiling))
+        self._room_height = float(size[2])
+        self._column_grid = self._grid.column_grid(self._room_height)
         floor = np.zeros(cfg.map_size ** 2, np.uint8)
         floor[self._probes.flat] = 255
         self._floor = floor.reshape(cfg.map_size, cfg.map_size)
@@ -244,6 +257,7 @@ class OpenMultiParallelEnv(ParallelEnv, EzPickle):
         self.steps += 1
         self._links = (plan.send_params, plan.share_rays)
         self._last_report = report
+        self._columns = self.team.column_maps(self._column_grid)
         observations = {a: self._observe(i) for i, a in enumerate(self.agents)}
         t3 = time.perf_counter()
         infos = {a: self._info(i, report, 100.0 * gains[i]) for i, a in enumerate(self.agents)}
@@ -270,15 +284,15 @@ class OpenMultiParallelEnv(ParallelEnv, EzPickle):
         return {a: float(values[i]) for i, a in enumerate(self.possible_agents)}
 
     # ---- observations, infos, state ----------------------------------------------------------------
-    def _observe(self, i: int) -> np.ndarray:
-        """Agent i's observation from its snapshot (its own knowledge) and the probe channels."""
+    def _observe(self, i: int) -> dict[str, np.ndarray]:
+        """Agent i's observation from its snapshot and its own fields (never ground truth)."""
         snapshot = self._snapshots[i]
-        height, coverage = self._probes.channels(self._covered[i])
         boxes = [box for peer in snapshot.peers.values() for box in peer.held_object_boxes]
         known = {p: k.position for p, k in snapshot.peers.items() if k.position is not None}
         peers = peer_plane(self._grid, known, snapshot.rounds - 1)
-        return self._observers[i].assemble(height, coverage, received_plane(self._grid, boxes), snapshot.position,
-                                           peers, self._budget_share(snapshot))
+        planes = self._observers[i].assemble(self._columns[i], self._room_height, received_plane(self._grid, boxes),
+                                             snapshot.position, peers)
+        return {"map": planes, "comm": comm_vector(snapshot, len(self.possible_agents), self._budget_share(snapshot))}
 
     def _budget_share(self, snapshot) -> float:
         if self.config.comm_budget_mb is None:
@@ -302,10 +316,13 @@ class OpenMultiParallelEnv(ParallelEnv, EzPickle):
         return info
 
     def state(self) -> np.ndarray:
-        """All agents' observations stacked on the channel axis: (map_size, map_size, 7N) uint8."""
+        """For centralised critics: every agent's ``map`` planes, each followed by a ground-truth plane (the
+        share of the cell's observable-surface samples its map reproduces, the reward's view; never in an
+        observation): (map_size, map_size, 7N) uint8."""
         if self.team is None:
             raise RuntimeError("call reset() before state()")
-        return np.concatenate([self._observe(i) for i in range(len(self.possible_agents))], axis=-1)
+        return np.concatenate([np.concatenate([self._observe(i)["map"], self._probes.coverage(self._covered[i])[..., None]],
+                                              axis=-1) for i in range(len(self.possible_agents))], axis=-1)
 
     # ---- pictures ----------------------------------------------------------------------------------
     def render(self, mode: str | None = None):
@@ -321,7 +338,7 @@ class OpenMultiParallelEnv(ParallelEnv, EzPickle):
             return None
         if self.render_mode != "rgb_array" or self.team is None:
             return None
-        tiles = [agent_tile(self._observe(i), AGENT_COLOURS[i % len(AGENT_COLOURS)])
+        tiles = [agent_tile(self._observe(i)["map"], AGENT_COLOURS[i % len(AGENT_COLOURS)])
                  for i in range(len(self.possible_agents))]
         paths, positions = [], []
         for i, snapshot in enumerate(self._snapshots):

@@ -14,16 +14,16 @@ TILE_PX = 192
 
 
 def agent_tile(observation: np.ndarray, colour: np.ndarray) -> np.ndarray:
-    """(TILE_PX, TILE_PX, 3) picture of one observation: map height in grey where the map reproduces the
-    surface (the sparse probe cells dilated by one cell for the eye), observed-but-unmapped cells dark blue, received instances green, own path in the agent's
-    colour, peers' last known positions yellow."""
-    planes = [observation[..., k].astype(np.float32) / 255 for k in range(6)]
-    planes[0], planes[1] = grey_dilation(planes[0], size=3), grey_dilation(planes[1], size=3)  # probes are sparse
-    height, coverage, observed, received, path, peers = planes
+    """(TILE_PX, TILE_PX, 3) picture of one ``map`` observation: the height of its own map in grey (brighter
+    where its fields decide more of the column), observed-but-unmapped cells dark blue, received instances
+    green, own path in the agent's colour, peers' last known positions yellow."""
+    height, decided, observed, received, path, peers = (observation[..., k].astype(np.float32) / 255
+                                                         for k in range(6))
     rgb = np.zeros(observation.shape[:2] + (3,), np.float32)
     rgb += (observed > 0)[..., None] * np.array([0.05, 0.08, 0.25])
-    shade = (0.35 + 0.65 * height) * (coverage > 0)
-    rgb = np.where((coverage > 0)[..., None], shade[..., None] * np.array([1.0, 1.0, 1.0]), rgb)
+    mapped = height > 0
+    shade = (0.25 + 0.5 * height + 0.25 * decided) * mapped
+    rgb = np.where(mapped[..., None], shade[..., None] * np.array([1.0, 1.0, 1.0]), rgb)
     rgb[..., 1] = np.maximum(rgb[..., 1], 0.45 * received)
     on_path = path > 0
     rgb[on_path] = colour / 255 * (0.5 + 0.5 * path[on_path, None])

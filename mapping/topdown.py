@@ -1,0 +1,87 @@
+"""A top-down reading of one agent's own map: its fields queried on a fixed grid of columns.
+
+A robot deciding whom to talk to can only know what its own map holds. This reads that map the way a
+planner would, without any ground truth: every instance's occupancy is evaluated at the voxel centres of
+a fixed (rows, cols, levels) grid that fall inside the instance's box (outside every box the map is
+empty, as for meshing), and each column is summarised by the top of what the map holds there and by how
+much of the column the map decides. The grid is regular, so an instance's voxels are index ranges: no
+point-in-box search over the whole grid.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+DECIDED_MARGIN = 0.25
+"""A voxel is decided when its occupancy is at least this far from 0.5 (below 0.25 or above 0.75)."""
+
+
+@dataclass(frozen=True)
+class ColumnGrid:
+    """Voxel centres of a regular grid: ``xs`` (W,) columns, ``ys`` (H,) rows, ``zs`` (Z,) levels, ascending."""
+
+    xs: np.ndarray
+    ys: np.ndarray
+    zs: np.ndarray
+
+    def __post_init__(self) -> None:
+        for name in ("xs", "ys", "zs"):
+            axis = np.asarray(getattr(self, name), np.float64)
+            if axis.ndim != 1 or len(axis) < 1 or (len(axis) > 1 and np.any(np.diff(axis) <= 0)):
+                raise ValueError(f"ColumnGrid.{name} must be a non-empty ascending 1-D array, got shape {axis.shape}")
+
+    def index_range(self, axis: np.ndarray, lo: float, hi: float) -> tuple[int, int]:
+        """[start, stop) of the centres of ``axis`` within [lo, hi]."""
+        return int(np.searchsorted(axis, lo, "left")), int(np.searchsorted(axis, hi, "right"))
+
+
+@dataclass(frozen=True)
+class ColumnMap:
+    """Per column (H, W): what one agent's map holds there."""
+
+    top: np.ndarray
+    """Height (m) of the highest occupied voxel; NaN where the map holds nothing occupied."""
+    decided: np.ndarray
+    """Share of the column's voxels whose occupancy is decided (``DECIDED_MARGIN``) by some instance."""
+
+
+@torch.no_grad()
+def column_map(mapper, grid: ColumnGrid, level: float = 0.5) -> ColumnMap:
+    """Query every live instance of ``mapper`` (a ``MappingAgent``) on the voxels of ``grid`` inside its box.
+
+    A voxel covered by several instances takes the largest occupancy (the union of the instances, as the
+    scene mesh is the union of their meshes) and counts as decided when any of them decides it."""
+    xs, ys, zs = (np.asarray(a, np.float64) for a in (grid.xs, grid.ys, grid.zs))
+    shape = (len(ys), len(xs), len(zs))
+    occupancy = torch.zeros(int(np.prod(shape)), device=mapper.device)
+    decided = torch.zeros(int(np.prod(shape)), dtype=torch.bool, device=mapper.device)
+    for name, bank in mapper.banks.items():
+        slots = [s for s in mapper.slots.values() if s.bank == name and s.alive]
+        points, rows, flat = [], [], []
+        for slot in slots:
+            lo, hi = bank.bound_min[slot.row].cpu().numpy(), bank.bound_max[slot.row].cpu().numpy()
+            (c0, c1), (r0, r1), (l0, l1) = (grid.index_range(xs, lo[0], hi[0]), grid.index_range(ys, lo[1], hi[1]),
+                                            grid.index_range(zs, lo[2], hi[2]))
+            if c1 <= c0 or r1 <= r0 or l1 <= l0:
+                continue
+            r, c, k = np.meshgrid(np.arange(r0, r1), np.arange(c0, c1), np.arange(l0, l1), indexing="ij")
+            r, c, k = r.ravel(), c.ravel(), k.ravel()
+            points.append(np.stack([xs[c], ys[r], zs[k]], axis=1))
+            rows.append(np.full(len(r), slot.row))
+            flat.append(np.ravel_multi_index((r, c, k), shape))
+        if not points:
+            continue
+        out = bank.query(torch.as_tensor(np.concatenate(points), dtype=torch.float32, device=mapper.device),
+                         torch.as_tensor(np.concatenate(rows), dtype=torch.long, device=mapper.device),
+                         with_colour=False).occupancy
+        index = torch.as_tensor(np.concatenate(flat), dtype=torch.long, device=mapper.device)
+        occupancy.scatter_reduce_(0, index, out, reduce="amax")
+        decided.index_fill_(0, index[(out - 0.5).abs() >= DECIDED_MARGIN], True)
+    occupied = (occupancy > level).reshape(shape).cpu().numpy()
+    any_occupied = occupied.any(axis=2)
+    top_level = len(zs) - 1 - np.argmax(occupied[:, :, ::-1], axis=2)
+    top = np.where(any_occupied, zs[top_level], np.nan)
+    return ColumnMap(top, decided.reshape(shape).float().mean(dim=2).cpu().numpy())
