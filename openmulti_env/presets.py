@@ -9,12 +9,15 @@ everywhere; scene presets such as ``room0`` are another thing, in ``openmulti_en
 | `fast`    | 120            | 320x240 | 5              | every 5  | 20                    | MPNet        |
 | `full`    | 200            | 320x240 | 10             | every 2  | 20                    | MPNet        |
 | `rl_tiny` | 16             | 80x60   | 2              | every 2  | 1                     | MiniLM       |
+| `rl_small`| 60             | 80x60   | 5              | every 5  | 3                     | MiniLM       |
 | `rl`      | 120            | 160x120 | 5              | every 5  | 3                     | MiniLM       |
 
 ``full`` is the paper's setting, ``fast`` the measured one, ``demo`` the paths of ``fast`` with half the
 keyframes and coarser meshes (``make demo`` in about 5 minutes here), ``tiny`` for smoke runs and tests.
-``rl`` and ``rl_tiny`` are RL-sized: a few iterations per step and the small MiniLM encoder, so that an
-env step costs about a second (``rl``, the env's default) or a tenth of one (``rl_tiny``, for tests).
+``rl``, ``rl_small`` and ``rl_tiny`` are RL-sized: a few iterations per step and the small MiniLM encoder.
+``rl`` (the env's default) is 24 steps of a few seconds; ``rl_small`` (12 steps of 1-2 s) is where
+``openmulti train`` learns: there ``always``, ``never`` and fixed-rate schedules end points apart
+(``benchmarks/bench_schedules.py``); ``rl_tiny`` (a tenth of a second a step) is for tests.
 """
 
 from __future__ import annotations
@@ -102,6 +105,11 @@ PRESETS: dict[str, Preset] = {p.name: p for p in (
            frames_per_agent=16, image_width=80, image_height=60, planning_points=1500, culling_edge_m=0.1,
            frames_per_round=2, consistency_iterations=1, rays_per_pose=24, text_encoder="minilm", scene="tiny",
            num_agents=2, probe_points=600, map_size=48),
+    Preset("rl_small", "RL training: 60 frames per agent at 80x60 (12 steps), where schedules end points apart",
+           MappingConfig(keyframe_every=5, iterations_per_keyframe=3, rays_per_object=48, rays_per_structure=96,
+                         refit_steps=20),
+           frames_per_agent=60, image_width=80, image_height=60, consistency_iterations=1, rays_per_pose=64,
+           text_encoder="minilm", map_size=48),
     Preset("rl", "RL-sized: room0, 120 frames at 160x120, 3 iterations per keyframe, about a second per step",
            MappingConfig(keyframe_every=5, iterations_per_keyframe=3, rays_per_object=48, rays_per_structure=96,
                          refit_steps=20),

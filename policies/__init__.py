@@ -1,1 +1,29 @@
-"""Communication policies: scripted and learned (imports neither openmulti_env nor mapping)."""
+"""Communication policies: scripted and learned (imports neither openmulti_env nor mapping).
+
+``make_policy(name, num_agents)`` gives any policy by name (``policies.scripted.POLICY_FORMS``); every
+policy is called as ``policy(observations, infos, step) -> {agent: action}`` and says whether it reads
+observations (``reads_observations``: the layout is ``policies.observation``).
+"""
+
+from __future__ import annotations
+
+from policies.scripted import POLICY_FORMS, PolicyError, PolicySpec, ScriptedPolicy, parse_policy
+
+__all__ = ["POLICY_FORMS", "PolicyError", "PolicySpec", "ScriptedPolicy", "make_policy", "parse_policy"]
+
+
+def make_policy(name: str | PolicySpec, num_agents: int, seed: int = 0):
+    """The policy called ``name`` for a team of ``num_agents`` (PolicyError naming the problem)."""
+    spec = parse_policy(name) if isinstance(name, str) else name
+    if spec.rule == "novelty":
+        from policies.novelty import NoveltyPolicy  # noqa: PLC0415
+
+        policy = NoveltyPolicy(spec.settings["novelty"])
+    elif spec.rule in ("learned", "file"):
+        from policies.learned import LearnedPolicy  # noqa: PLC0415
+
+        policy = LearnedPolicy.load(spec.name, num_agents)
+    else:
+        return ScriptedPolicy(spec, num_agents, seed)
+    policy.spec = spec
+    return policy

@@ -36,8 +36,50 @@ class ActionCast(_vec_env_wrapper()):
             actions = np.rint(np.asarray(actions)).astype(dtype)
         self.venv.step_async(actions)
 
+    seed_next_reset: int | None = None
+
+    def seed(self, seed: int | None = None):
+        """Seed the next reset (SuperSuit's SB3 wrapper forwards ``seed`` to vector envs that lack it)."""
+        self.seed_next_reset = seed
+        return [seed]
+
     def reset(self):
-        return self.venv.reset()
+        if self.seed_next_reset is None:
+            return self.venv.reset()
+        inner = self.venv.venv  # SuperSuit's vector env under its SB3 wrapper: seeds entry i with seed + i
+        observations, self.venv.reset_infos = inner.reset(seed=self.seed_next_reset)
+        self.seed_next_reset = None
+        return observations
 
     def step_wait(self):
         return self.venv.step_wait()
+
+
+class _WorkerEnv:
+    """Picklable constructor of worker ``index``'s vector env (SuperSuit ships it to its process)."""
+
+    def __init__(self, env_factory, index: int):
+        self.env_factory, self.index = env_factory, index
+
+    def __call__(self):
+        import supersuit as ss  # noqa: PLC0415
+
+        return ss.pettingzoo_env_to_vec_env_v1(self.env_factory(self.index))
+
+
+def sb3_vec_env_from_factory(env_factory, workers: int, seed: int = 0):
+    """An SB3 ``VecEnv`` over ``workers`` envs, ``env_factory(i)`` each (in ``workers`` processes when more
+    than one), every agent an entry; returns it with the team size. Seeded through reset (SB3's ``seed=``
+    fails on SuperSuit's concatenation)."""
+    from supersuit.vector import MakeCPUAsyncConstructor  # noqa: PLC0415
+    from supersuit.vector.sb3_vector_wrapper import SB3VecEnvWrapper  # noqa: PLC0415
+
+    probe = env_factory(0)
+    num_agents = len(probe.possible_agents)
+    spaces = probe.observation_space(probe.possible_agents[0]), probe.action_space(probe.possible_agents[0])
+    probe.close()
+    constructors = [_WorkerEnv(env_factory, i) for i in range(workers)]
+    vec = MakeCPUAsyncConstructor(workers if workers > 1 else 0)(constructors, *spaces)
+    vec = ActionCast(SB3VecEnvWrapper(vec))
+    vec.seed(seed)
+    return vec, num_agents

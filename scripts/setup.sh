@@ -35,7 +35,7 @@ echo "[setup] installing openmulti, its dependencies and the RL clients the test
 # torch is named again so that no dependency (SB3, TorchRL) can move it off the CPU build
 # every other package at the version in scripts/constraints.txt, the versions the README's figures were
 # measured with (two fresh set-ups a day apart gave figures up to 2.7 points apart; cause not isolated)
-"$PIP" install -q -c scripts/constraints.txt -e ".[dev,test]" "torch==2.13.0"
+"$PIP" install -q -c scripts/constraints.txt -e ".[dev,test,train]" "torch==2.13.0"
 # pyrender pins PyOpenGL 3.1.0, whose OSMesa binding lacks OSMesaCreateContextAttribs; 3.1.10 works
 # for both EGL and OSMesa (pip warns about the pin; it is harmless).
 "$PIP" install -q "PyOpenGL==3.1.10" 2>/dev/null || true

@@ -1,5 +1,7 @@
 import json
 
+import pytest
+
 from openmulti_env.runs.cli import main
 
 
@@ -36,6 +38,10 @@ def test_bad_input_gives_clear_errors(capsys, tmp_path):
     assert "unknown policy" in capsys.readouterr().err
     assert main(["run", "--scene", "tiny", "--policy", "bernoulli:1.5"]) == 2
     assert "[0, 1]" in capsys.readouterr().err
+    assert main(["run", "--scene", "tiny", "--policy", "runs/nowhere/best.json"]) == 2
+    assert "does not exist" in capsys.readouterr().err
+    assert main(["train", "--scenes", "room0", "random:3", "--out", str(tmp_path / "t")]) == 2
+    assert "held-out" in capsys.readouterr().err
     assert main(["query", "--run", str(tmp_path / "missing"), "the bed"]) == 2
     assert "missing" in capsys.readouterr().err
 
@@ -86,7 +92,7 @@ def test_every_scripted_policy_runs_rounds_on_the_tiny_world(tmp_path):
     from openmulti_env.runs.run import run
 
     sent = {}
-    for policy in ("never", "round_robin", "bernoulli:0.5", "budget"):
+    for policy in ("never", "round_robin", "bernoulli:0.5", "budget", "every:2", "novelty"):
         result = run("tiny", 3, policy, "tiny", 0, tmp_path / policy.replace(":", "_"), device="cpu",
                      comm_budget_mb=1.0 if policy == "budget" else None, progress=False, max_rounds=2)
         sent[policy] = result
@@ -95,3 +101,12 @@ def test_every_scripted_policy_runs_rounds_on_the_tiny_world(tmp_path):
     assert sent["bernoulli:0.5"]["messages"]["dropped"] > 0
     assert sent["budget"]["messages"]["over_budget"] > 0
     assert max(sent["budget"]["bytes_per_round"]) > 0 and sent["budget"]["bytes_sent_total"] <= 3 * 1e6
+    assert sent["every:2"]["bytes_per_round"][0] > 0 and sent["every:2"]["bytes_per_round"][1] == 0
+    assert sent["novelty"]["bytes_per_round"][0] > 0  # every peer lacks its instances at first
+
+
+def test_observation_policies_are_refused_on_data_sets_with_the_reason(tmp_path):
+    from openmulti_env.runs.run import run_data
+
+    with pytest.raises(ValueError, match="reads observations"):
+        run_data(tmp_path, 2, "novelty", "tiny", 0, tmp_path / "out")

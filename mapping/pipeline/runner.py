@@ -27,8 +27,9 @@ from mapping.pipeline.source import GroundTruth, Source, SourceRecord
 from mapping.runtime import set_threads
 from mapping.team import AgentSnapshot, ChannelConfig, RoundPlan, Team, TeamConfig
 
-Schedule = Callable[[int, list[AgentSnapshot]], RoundPlan]
-"""Who sends what to whom in round ``t``, from what each agent knows (``Team.snapshots``)."""
+Schedule = Callable[[Team, list[AgentSnapshot]], RoundPlan]
+"""Who sends what to whom in the team's next round (``team.round_index``), from what each agent knows:
+its snapshot (``Team.snapshots``) and its own fields (e.g. ``Team.column_maps``)."""
 
 METRICS_NOTE = ("Per-agent metrics: each agent's own map against the whole ground truth; mean = their average "
                 "(as the paper). {culling} acc_cm_unculled scores the whole reconstruction (and *_nice "
@@ -135,7 +136,7 @@ def run_rounds(team: Team, schedule: Schedule, checkpoint: Path, config: RunConf
     snapshots = team.snapshots()
     with tqdm(total=total, initial=team.round_index, desc="rounds", unit="round", disable=not config.progress) as bar:
         while not team.done and team.round_index < total:
-            report = team.round(schedule(team.round_index, snapshots))
+            report = team.round(schedule(team, snapshots))
             snapshots = report.agents
             reports.append(report.as_dict())
             bar.set_postfix(MB=f"{sum(report.bytes_sent) / 1e6:.1f}", fleet_s=f"{report.fleet_s:.1f}",

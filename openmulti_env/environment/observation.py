@@ -161,3 +161,45 @@ def received_plane(grid: TopDownGrid, boxes: list[tuple[np.ndarray, np.ndarray]]
 
 def _u8(x: np.ndarray) -> np.ndarray:
     return np.round(np.clip(x, 0.0, 1.0) * 255).astype(np.uint8)
+
+
+class TeamObserver:
+    """Every agent's observation over a team's rounds: the env's and ``openmulti run``'s one builder.
+
+    ``room_lo``/``room_hi`` are the room's box (x, y, z): the extent an agent knows it maps in, which fixes
+    the grid; everything else comes from the team's snapshots and each agent's own fields."""
+
+    def __init__(self, room_lo: np.ndarray, room_hi: np.ndarray, map_size: int, budget_bytes: float | None):
+        lo, hi = np.asarray(room_lo, float), np.asarray(room_hi, float)
+        self.grid = TopDownGrid.around(lo[:2], hi[:2], map_size)
+        self.room_height = float(hi[2] - lo[2])
+        self.column_grid = self.grid.column_grid(self.room_height)
+        self.budget_bytes = budget_bytes
+        self.observers: list[AgentObservation] = []
+        self.columns: list[ColumnMap | None] = []
+
+    def reset(self, num_agents: int) -> None:
+        """A new episode: empty maps and paths."""
+        self.observers = [AgentObservation(self.grid) for _ in range(num_agents)]
+        self.columns = [None] * num_agents
+
+    def update(self, team, snapshots: list[AgentSnapshot]) -> None:
+        """After a round: each agent's new frames and its fields read on the column grid."""
+        for observer, snapshot in zip(self.observers, snapshots):
+            observer.add_frames(list(snapshot.new_frames))
+        self.columns = team.column_maps(self.column_grid)
+
+    def observe(self, snapshot: AgentSnapshot) -> dict[str, np.ndarray]:
+        """The agent's ``{"map", "comm"}`` observation (``policies.observation``)."""
+        boxes = [box for peer in snapshot.peers.values() for box in peer.held_object_boxes]
+        known = {p: k.position for p, k in snapshot.peers.items() if k.position is not None}
+        peers = peer_plane(self.grid, known, snapshot.rounds - 1)
+        planes = self.observers[snapshot.index].assemble(self.columns[snapshot.index], self.room_height,
+                                                         received_plane(self.grid, boxes), snapshot.position, peers)
+        return {"map": planes, "comm": comm_vector(snapshot, len(self.observers), self.budget_share(snapshot))}
+
+    def budget_share(self, snapshot: AgentSnapshot) -> float:
+        """Share of the agent's byte budget left (1 without a budget)."""
+        if self.budget_bytes is None:
+            return 1.0
+        return float(snapshot.budget_left_bytes / self.budget_bytes) if self.budget_bytes > 0 else 0.0

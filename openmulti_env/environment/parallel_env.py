@@ -103,8 +103,7 @@ from mapping.team import Team
 from openmulti_env.environment.actions import ActionError, actions_to_plan
 from openmulti_env.environment.config import EnvConfig, env_config
 from openmulti_env.environment.render import AGENT_COLOURS, agent_tile, compose, team_panel
-from openmulti_env.environment.observation import (AgentObservation, ProbeRaster, TopDownGrid, comm_vector, peer_plane,
-                                                   received_plane)
+from openmulti_env.environment.observation import ProbeRaster, TeamObserver
 from openmulti_env.world.cache import cached_world
 from openmulti_env.world.stream import RenderCache, world_streams, world_vocabulary
 from policies.observation import MAP_CHANNELS, comm_size
@@ -196,10 +195,9 @@ class OpenMultiParallelEnv(ParallelEnv, EzPickle):
         self._snapshots = self.team.snapshots()
         self.agents = list(self.possible_agents)
         self.steps = 0
-        self._observers = [AgentObservation(self._grid) for _ in self.agents]
+        self._observer.reset(len(self.agents))
         self._completion = np.zeros(len(self.agents))
         self._covered = [np.zeros(len(self._probe_points), bool) for _ in self.agents]
-        self._columns = [None] * len(self.agents)
         self._links = (np.zeros((len(self.agents),) * 2, bool),) * 2
         self._last_report = None
         observations = {a: self._observe(i) for i, a in enumerate(self.agents)}
@@ -217,11 +215,11 @@ class OpenMultiParallelEnv(ParallelEnv, EzPickle):
         points, normals, ids = self.world.surface.sample_points(cfg.probe_points, seed=self.world_seed)
         self._probe_points, self._probe_normals = points, normals
         size = np.asarray(self.world.scene.size_m, float)
-        self._grid = TopDownGrid.around(np.zeros(2), size[:2], cfg.map_size)
+        self._observer = TeamObserver(np.zeros(3), size, cfg.map_size,
+                                      None if cfg.comm_budget_mb is None else cfg.comm_budget_mb * 1e6)
+        self._grid = self._observer.grid
         ceiling = [inst.instance_id for inst in self.world.scene.instances if inst.category == "ceiling"]
         self._probes = ProbeRaster(self._grid, points, hidden=np.isin(ids, ceiling))
-        self._room_height = float(size[2])
-        self._column_grid = self._grid.column_grid(self._room_height)
         floor = np.zeros(cfg.map_size ** 2, np.uint8)
         floor[self._probes.flat] = 255
         self._floor = floor.reshape(cfg.map_size, cfg.map_size)
@@ -245,8 +243,6 @@ class OpenMultiParallelEnv(ParallelEnv, EzPickle):
         report = self.team.round(plan)
         self._snapshots = report.agents
         t1 = time.perf_counter()
-        for observer, snapshot in zip(self._observers, self._snapshots):
-            observer.add_frames(list(snapshot.new_frames))
         gains = np.zeros(len(self.agents))
         self._covered = self.team.surface_coverage(self._probe_points, self._probe_normals)
         for i in range(len(self.agents)):
@@ -257,7 +253,7 @@ class OpenMultiParallelEnv(ParallelEnv, EzPickle):
         self.steps += 1
         self._links = (plan.send_params, plan.share_rays)
         self._last_report = report
-        self._columns = self.team.column_maps(self._column_grid)
+        self._observer.update(self.team, self._snapshots)
         observations = {a: self._observe(i) for i, a in enumerate(self.agents)}
         t3 = time.perf_counter()
         infos = {a: self._info(i, report, 100.0 * gains[i]) for i, a in enumerate(self.agents)}
@@ -286,19 +282,7 @@ class OpenMultiParallelEnv(ParallelEnv, EzPickle):
     # ---- observations, infos, state ----------------------------------------------------------------
     def _observe(self, i: int) -> dict[str, np.ndarray]:
         """Agent i's observation from its snapshot and its own fields (never ground truth)."""
-        snapshot = self._snapshots[i]
-        boxes = [box for peer in snapshot.peers.values() for box in peer.held_object_boxes]
-        known = {p: k.position for p, k in snapshot.peers.items() if k.position is not None}
-        peers = peer_plane(self._grid, known, snapshot.rounds - 1)
-        planes = self._observers[i].assemble(self._columns[i], self._room_height, received_plane(self._grid, boxes),
-                                             snapshot.position, peers)
-        return {"map": planes, "comm": comm_vector(snapshot, len(self.possible_agents), self._budget_share(snapshot))}
-
-    def _budget_share(self, snapshot) -> float:
-        if self.config.comm_budget_mb is None:
-            return 1.0
-        budget = self.config.comm_budget_mb * 1e6
-        return float(snapshot.budget_left_bytes / budget) if budget > 0 else 0.0
+        return self._observer.observe(self._snapshots[i])
 
     def _info(self, i: int, report, gain_pct: float) -> dict[str, float]:
         snapshot = self._snapshots[i]

@@ -1,6 +1,6 @@
 """The ``openmulti`` command line: ``scenes``, ``run`` (a team maps a scene or a data set round by round under a
-scripted communication policy), ``query``, ``reproduce`` (the paper's tables) and ``cache``; ``train`` is not
-there yet.
+scripted communication policy), ``query``, ``reproduce`` (the paper's tables), ``train`` (a communication policy)
+and ``cache``.
 
 Heavy modules (torch, open3d, the world) are imported inside the commands that need them, so that
 ``openmulti query`` starts fast."""
@@ -18,23 +18,12 @@ from mapping.perception.image_encoder import ImageEncoderError
 from mapping.perception.text_encoder import TextEncoderError
 from policies.scripted import parse_policy
 
-RUN_PRESETS = ("tiny", "demo", "fast", "full", "rl_tiny", "rl")  # openmulti_env.presets.PRESET_NAMES (a test checks)
+RUN_PRESETS = ("tiny", "demo", "fast", "full", "rl_tiny", "rl_small", "rl")  # openmulti_env.presets.PRESET_NAMES (a test checks)
 MAX_AGENTS = 8  # openmulti_env.world.world.MAX_AGENTS (a test checks they agree)
 
-PENDING = {
-    "train": "learning communication schedules is not implemented yet; the PettingZoo env it will train on is "
-             "there (from openmulti_env import parallel_env; docs/env.md)",
-}
-
-
 def check_policy(name: str) -> str:
-    """Validate a policy name: always, never, round_robin, budget, bernoulli:P (trained policies run
-    through the env)."""
-    spec = parse_policy(name)
-    if spec.rule == "file":
-        raise ValueError(f"{name}: openmulti run takes the scripted policies (always, never, round_robin, budget, "
-                         "bernoulli:P); trained policies run through the PettingZoo env")
-    return spec.name
+    """Validate a policy name (``policies.POLICY_FORMS``): PolicyError naming the problem."""
+    return parse_policy(name).name
 
 
 class _DefaultsShown(argparse.HelpFormatter):
@@ -47,6 +36,10 @@ class _DefaultsShown(argparse.HelpFormatter):
         if "default" in text or unsaid or not action.option_strings:
             return text
         return f"{text} (default: {default})"
+
+
+class _RawDefaults(argparse.RawDescriptionHelpFormatter, _DefaultsShown):
+    """The description as written (it holds commands), defaults shown."""
 
 
 def _agents(value: str) -> int:
@@ -208,10 +201,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--scene", default="room0", help="scene preset (openmulti scenes lists them), random:SEED, or "
                    "the path of a JSON/YAML manifest of your own meshes")
     p.add_argument("--agents", type=_agents, default=4, help="agents in the team (each maps its own region)")
-    p.add_argument("--policy", default="always", help="communication policy: always, never, bernoulli:P (each "
-                   "message arrives with probability P), round_robin, budget (with --comm-budget-mb)")
+    p.add_argument("--policy", default="always", help="communication policy: always, never, round_robin, budget "
+                   "(with --comm-budget-mb), every:K (everything every K-th round), rate:Q (each link with "
+                   "probability Q), bernoulli:P (always; each message arrives with probability P), novelty[:k=v,...] "
+                   "(reads the observations: policies/novelty.py), learned (the trained policy shipped with the "
+                   "package) or a trained policy file (.json beside its .safetensors)")
     p.add_argument("--preset", choices=RUN_PRESETS, default="fast",
-                   help="episode size: tiny (smoke), demo (make demo), fast, full (the paper's), rl_tiny, rl "
+                   help="episode size: tiny (smoke), demo (make demo), fast, full (the paper's), rl_tiny, rl_small, rl "
                         "(the env's RL-sized ones)")
     p.add_argument("--seed", type=int, default=0, help="one seed for layout, paths, segmentation errors, channel "
                    "draws and network initialisation")
@@ -285,16 +281,51 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--clear", action="store_true", help="delete every cached world")
     p.set_defaults(func=cmd_cache)
 
-    for name, why in PENDING.items():
-        p = sub.add_parser(name, help=f"(not available yet: {why.split(';')[0]})")
-        p.add_argument("rest", nargs=argparse.REMAINDER)
-        p.set_defaults(func=lambda a, why=why, name=name: _pending(name, why))
+    p = sub.add_parser("train", help="learn a shared communication policy with PPO (SB3) on the env",
+                       formatter_class=_RawDefaults, description=TRAIN_HELP)
+    p.add_argument("--out", default="runs/train", help="folder of the run: checkpoint (resumed), log.csv, "
+                   "learning_curve.png, best.json/.safetensors and latest.json/.safetensors")
+    p.add_argument("--preset", choices=RUN_PRESETS, default="rl_small", help="episode size of the env")
+    p.add_argument("--agents", type=_agents, default=4, help="team size (a policy runs on teams of this size)")
+    p.add_argument("--scenes", nargs="+", metavar="SCENE", help="training worlds (default: random:100 .. random:115; "
+                   "room0, office0 and room2 are held out for the trade-off table)")
+    p.add_argument("--episodes-per-world", type=int, default=2, help="episodes before a worker moves to its next world")
+    p.add_argument("--env-steps", type=int, default=20000, help="env steps (team rounds) over all workers")
+    p.add_argument("--workers", type=int, default=2, help="worker processes, each stepping its own env")
+    p.add_argument("--reward", choices=("team", "individual"), default="team")
+    p.add_argument("--comm-cost-per-mb", type=float, default=0.0025, help="reward cost per megabyte sent (the team's "
+                   "MB over the team size)")
+    p.add_argument("--comm-budget-mb", type=float, metavar="MB", help="megabytes each agent may send per episode")
+    p.add_argument("--horizon", type=int, help="steps per episode (default: until the paths end)")
+    p.add_argument("--n-steps", type=int, default=32, help="PPO: rounds per worker and agent between updates")
+    p.add_argument("--batch-size", type=int, default=64, help="PPO minibatch")
+    p.add_argument("--learning-rate", type=float, default=3e-4, help="PPO learning rate")
+    p.add_argument("--ent-coef", type=float, default=0.01, help="PPO entropy bonus")
+    p.add_argument("--chunk-env-steps", type=int, default=512, help="checkpoint, policy files and log every this many "
+                   "env steps")
+    p.add_argument("--seed", type=int, default=0)
+    p.set_defaults(func=cmd_train)
     return parser
 
 
-def _pending(name: str, why: str) -> int:
-    print(f"openmulti {name}: not available yet: {why}.", file=sys.stderr)
-    return 2
+def cmd_train(args: argparse.Namespace) -> int:
+    """Train a communication policy (``openmulti_env.runs.train``)."""
+    from openmulti_env.runs.train import train_command  # noqa: PLC0415
+
+    return train_command(args)
+
+
+TRAIN_HELP = """Learn one communication policy shared by every agent (PPO from Stable-Baselines3, parameter
+sharing through SuperSuit) on a distribution of worlds, with the reward's cost per MB sent. The run is
+resumable (the same --out continues it) and writes the best policy as a .json + .safetensors pair that
+`openmulti run --policy FILE` and `policies.make_policy(FILE, N)` load.
+
+On a laptop (2 cores): a smoke run in minutes,
+  openmulti train --preset rl_tiny --agents 2 --env-steps 256 --workers 1 --out runs/train_smoke
+and the shipped policy's run (hours; see policies/trained/README.md for its exact command),
+  openmulti train --preset rl_small --env-steps 10000 --workers 2 --out runs/train_rl_small
+On a cluster: more --workers (one process each; more cores, more env steps per hour); the RLlib backend
+on Ray is the Ray issue's work and is not in this version."""
 
 
 def main(argv: list[str] | None = None) -> int:

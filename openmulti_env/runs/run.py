@@ -28,7 +28,8 @@ from openmulti_env.environment.actions import actions_to_plan
 from openmulti_env.presets import Preset, get_preset
 from openmulti_env.runs.sim_source import SimulatedSource
 from openmulti_env.world import World
-from policies.scripted import ScriptedPolicy, parse_policy
+from openmulti_env.environment.observation import TeamObserver
+from policies import make_policy, parse_policy
 
 RUN_ALIGNMENT_MODES = ("paper", "none")
 
@@ -93,7 +94,11 @@ def run(scene: str, agents: int, policy: str, preset: str, seed: int, out: Path,
                        three_cullings=three_cullings, plots=plots, progress=progress,
                        title=f"{world.scene.name}: policy {policy}")
     try:
-        return run_team(source, record, config, scripted_schedule(scripted), start=begun.start).as_json()
+        observer = None
+        if scripted.reads_observations:
+            budget = None if comm_budget_mb is None else comm_budget_mb * 1e6
+            observer = TeamObserver((0.0, 0.0, 0.0), world.scene.size_m, chosen.map_size, budget)
+        return run_team(source, record, config, PolicySchedule(scripted, observer), start=begun.start).as_json()
     finally:
         world.close()
 
@@ -116,6 +121,9 @@ def run_data(data: str | Path, agents: int, policy: str, preset: str, seed: int,
     begun = begin_run(preset, policy, agents, alignment, consistency, comm_budget_mb, threads, workers, seed,
                       clip_checkpoint)
     chosen, scripted, workers, image_encoder = begun.preset, begun.policy, begun.workers, begun.image_encoder
+    if scripted.reads_observations:
+        raise ValueError(f"policy {policy!r} reads observations, which need the room's box; data-set runs take the "
+                         "fixed schedules (always, never, round_robin, budget, every:K, rate:Q, bernoulli:P)")
     encoder = shared_text_encoder(name=chosen.text_encoder)
     inputs = prepare_inputs(data, kind, agents, frames, intrinsics, depth_scale, gt_mesh, encoder, image_encoder,
                             culling_edge_m=chosen.culling_edge_m, seed=seed, progress=progress)
@@ -131,7 +139,7 @@ def run_data(data: str | Path, agents: int, policy: str, preset: str, seed: int,
     config = RunConfig(Path(out), team, team_channel(scripted, comm_budget_mb), seed=seed, device=device,
                        workers=workers, threads=threads, checkpoint_every=checkpoint_every, max_rounds=max_rounds,
                        progress=progress, title=f"{inputs.name}: policy {policy}")
-    return run_team(source, record, config, scripted_schedule(scripted), start=begun.start).as_json()
+    return run_team(source, record, config, PolicySchedule(scripted), start=begun.start).as_json()
 
 
 @dataclass
@@ -139,7 +147,8 @@ class RunStart:
     """What every run settles first: its preset, policy, worker threads, clock and image encoder."""
 
     preset: Preset
-    policy: ScriptedPolicy
+    policy: object
+    """A policy of ``policies.make_policy``."""
     workers: int
     start: float
     image_encoder: object | None
@@ -150,7 +159,7 @@ def begin_run(preset: str, policy: str, agents: int, alignment: str, consistency
     """Check the options (ValueError naming the problem), set the threads, start the clock, seed torch and
     load the optional image encoder, in that order (the order the runs' figures were made in)."""
     chosen = get_preset(preset)
-    scripted = team_policy(policy, agents, alignment, consistency, comm_budget_mb)
+    scripted = team_policy(policy, agents, alignment, consistency, comm_budget_mb, seed)
     workers = team_workers(agents, threads, workers)
     set_threads(threads, workers=workers)
     start = time.perf_counter()
@@ -159,8 +168,8 @@ def begin_run(preset: str, policy: str, agents: int, alignment: str, consistency
 
 
 def team_policy(policy: str, agents: int, alignment: str, consistency: str,
-                comm_budget_mb: float | None) -> ScriptedPolicy:
-    """The scripted policy of a team run, after checking the options (ValueError naming the problem)."""
+                comm_budget_mb: float | None, seed: int = 0):
+    """The communication policy of a team run, after checking the options (ValueError naming the problem)."""
     spec = parse_policy(policy)
     if alignment not in RUN_ALIGNMENT_MODES:
         raise ValueError(f"unknown alignment {alignment!r} for a team run; choose one of {RUN_ALIGNMENT_MODES} "
@@ -171,7 +180,7 @@ def team_policy(policy: str, agents: int, alignment: str, consistency: str,
         raise ValueError(f"--comm-budget-mb must be >= 0, got {comm_budget_mb}")
     if spec.rule == "budget" and comm_budget_mb is None:
         raise ValueError("policy 'budget' needs --comm-budget-mb MB (the megabytes each agent may send over the run)")
-    return ScriptedPolicy(spec, agents)
+    return make_policy(spec, agents, seed)
 
 
 def team_workers(agents: int, threads: int | None, workers: int | None) -> int:
@@ -193,15 +202,27 @@ def image_encoder_said_once(clip_checkpoint: str | None):
     return image_encoder
 
 
-def scripted_schedule(policy: ScriptedPolicy) -> Schedule:
-    """A scripted policy as the pipeline's schedule: it reads each agent's budget left, as the env's infos."""
-    def schedule(round_index: int, snapshots: list[AgentSnapshot]) -> RoundPlan:
+class PolicySchedule:
+    """A communication policy as the pipeline's schedule. Each round it hands the policy what the env would:
+    every agent's observation (``TeamObserver``: its own frames, fields and messages; built only for
+    policies that read them) and its budget left (the env's ``infos``)."""
+
+    def __init__(self, policy, observer: TeamObserver | None = None):
+        self.policy, self.observer = policy, observer
+
+    def __call__(self, team, snapshots: list[AgentSnapshot]) -> RoundPlan:
         infos = {s.name: {"budget_left_mb": s.budget_left_bytes / 1e6} for s in snapshots}
-        return actions_to_plan(policy(infos, round_index), [s.name for s in snapshots])
-    return schedule
+        observations = None
+        if self.observer is not None:
+            if len(self.observer.observers) != len(snapshots):
+                self.observer.reset(len(snapshots))
+            if team.round_index > 0:
+                self.observer.update(team, snapshots)
+            observations = {s.name: self.observer.observe(s) for s in snapshots}
+        return actions_to_plan(self.policy(observations, infos, team.round_index), [s.name for s in snapshots])
 
 
-def team_channel(policy: ScriptedPolicy, comm_budget_mb: float | None) -> ChannelConfig:
+def team_channel(policy, comm_budget_mb: float | None) -> ChannelConfig:
     """The links of a run: the policy's success probability, ``comm_budget_mb`` per agent (None: unlimited)."""
     return ChannelConfig(policy.spec.success_probability, None if comm_budget_mb is None else comm_budget_mb * 1e6)
 

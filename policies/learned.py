@@ -1,0 +1,51 @@
+"""A trained communication policy: ``--policy learned`` (the one shipped in ``policies/trained/``) or a file.
+
+Acts on every agent's observation with one shared network (parameter sharing, as it was trained), taking
+the mode of each action entry (logit > 0): a deployed schedule is deterministic.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Mapping
+
+import numpy as np
+
+from policies.files import load_policy
+from policies.scripted import PolicyError
+
+SHIPPED = Path(__file__).parent / "trained" / "learned.json"
+"""The best policy trained so far; ``policies/trained/README.md`` records the command that made it."""
+
+
+class LearnedPolicy:
+    """A policy file's network acting for every agent."""
+
+    reads_observations = True
+
+    def __init__(self, network, record: dict, source: str):
+        self.network, self.record, self.source = network, record, source
+
+    @staticmethod
+    def load(name: str, num_agents: int) -> "LearnedPolicy":
+        """``learned`` or a path (PolicyError when the file is missing or does not fit)."""
+        path = SHIPPED if name == "learned" else Path(name)
+        if name == "learned" and not SHIPPED.is_file():
+            raise PolicyError("no trained policy ships with this version yet (policies/trained/learned.json); train "
+                              "one with `openmulti train` and pass its file to --policy")
+        network, record = load_policy(path, num_agents)
+        return LearnedPolicy(network, record, str(path))
+
+    def __call__(self, observations: Mapping[str, Mapping[str, np.ndarray]], infos=None,
+                 step: int = 0) -> dict[str, np.ndarray]:
+        if observations is None:
+            raise ValueError("a learned policy reads observations: call it with the env's observations")
+        agents = list(observations)
+        maps = np.stack([np.asarray(observations[a]["map"]) for a in agents])
+        comms = np.stack([np.asarray(observations[a]["comm"], np.float32) for a in agents])
+        config = self.network.config
+        if maps.shape[-1] != config.map_channels or comms.shape[-1] != config.comm_size:
+            raise PolicyError(f"{self.source} takes maps of {config.map_channels} channels and comm vectors of "
+                              f"{config.comm_size}; the env gives {maps.shape[-1]} and {comms.shape[-1]}")
+        actions = self.network.act(maps, comms)
+        return {a: actions[k] for k, a in enumerate(agents)}

@@ -1,0 +1,80 @@
+"""The learned communication policy's network, in plain torch (no RL library needed to run it).
+
+``CommFeatures`` reads an observation (``policies.observation``): a small CNN over the ``map`` planes,
+pooled to a fixed 4 x 4 so any map size gives the same features, and an MLP over the ``comm`` vector;
+``CommPolicyNetwork`` adds the action head: one logit per action entry (send parameters / share rays per
+peer), acted on as independent Bernoulli draws (training) or their mode, logit > 0 (a deployed policy).
+The trainer wraps ``CommFeatures`` as Stable-Baselines3's features extractor, so the weights it learns
+load here unchanged.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import numpy as np
+import torch
+from torch import nn
+
+
+@dataclass(frozen=True)
+class NetworkConfig:
+    """The architecture, written beside the weights (a policy file's JSON)."""
+
+    map_channels: int
+    comm_size: int
+    actions: int
+    conv_channels: tuple[int, int, int] = (16, 32, 32)
+    map_features: int = 128
+    comm_features: int = 64
+    features: int = 128
+
+    def as_dict(self) -> dict:
+        return {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(self).items()}
+
+    @staticmethod
+    def from_dict(data: dict) -> "NetworkConfig":
+        values = dict(data)
+        values["conv_channels"] = tuple(values["conv_channels"])
+        return NetworkConfig(**values)
+
+
+class CommFeatures(nn.Module):
+    """Observation -> (B, ``features``) features. ``forward`` takes the map as (B, C, H, W) floats in [0, 1]
+    (what SB3 hands its extractors); ``observe`` takes raw observations (uint8 (B, H, W, C) maps)."""
+
+    def __init__(self, config: NetworkConfig):
+        super().__init__()
+        c1, c2, c3 = config.conv_channels
+        self.config = config
+        self.cnn = nn.Sequential(
+            nn.Conv2d(config.map_channels, c1, 5, stride=2, padding=2), nn.ReLU(),
+            nn.Conv2d(c1, c2, 3, stride=2, padding=1), nn.ReLU(),
+            nn.Conv2d(c2, c3, 3, stride=2, padding=1), nn.ReLU(),
+            nn.AdaptiveAvgPool2d(4), nn.Flatten(), nn.Linear(c3 * 16, config.map_features), nn.ReLU())
+        self.comm = nn.Sequential(nn.Linear(config.comm_size, config.comm_features), nn.ReLU())
+        self.trunk = nn.Sequential(nn.Linear(config.map_features + config.comm_features, config.features), nn.ReLU())
+
+    def forward(self, observations: dict[str, torch.Tensor]) -> torch.Tensor:
+        return self.trunk(torch.cat([self.cnn(observations["map"]), self.comm(observations["comm"])], dim=1))
+
+    def observe(self, map_hwc: np.ndarray, comm: np.ndarray) -> torch.Tensor:
+        """Features of raw observations: ``map_hwc`` (B, H, W, C) uint8, ``comm`` (B, K) float."""
+        device = next(self.parameters()).device
+        planes = torch.as_tensor(np.asarray(map_hwc), device=device).permute(0, 3, 1, 2).float() / 255.0
+        return self(dict(map=planes, comm=torch.as_tensor(np.asarray(comm, np.float32), device=device)))
+
+
+class CommPolicyNetwork(nn.Module):
+    """Features and the action head (``actions`` logits)."""
+
+    def __init__(self, config: NetworkConfig):
+        super().__init__()
+        self.config = config
+        self.features = CommFeatures(config)
+        self.action = nn.Linear(config.features, config.actions)
+
+    @torch.no_grad()
+    def act(self, map_hwc: np.ndarray, comm: np.ndarray) -> np.ndarray:
+        """The mode of each Bernoulli entry (logit > 0): (B, actions) int8."""
+        return (self.action(self.features.observe(map_hwc, comm)) > 0).cpu().numpy().astype(np.int8)

@@ -1,0 +1,228 @@
+"""Train a shared communication policy with PPO (Stable-Baselines3) on any env with this contract.
+
+Why SB3 + SuperSuit: it trains on the env today with parameter sharing (every agent one entry of a vector
+env, one policy: the agents are identical robots) and process workers; TorchRL 0.14 wraps the env but
+BenchMARL, its MARL trainer, requires torchrl < 0.12; RLlib pins gymnasium 1.2.2 (the cluster backend of
+the Ray issue). SuperSuit is semi-deprecated upstream; its two calls are isolated in ``policies.sb3_vec``.
+
+Read top to bottom: settings -> vector env over worker processes -> PPO with ``CommFeatures`` as its
+features extractor -> learn in chunks, each followed by a checkpoint (resumable), the policy file of the
+latest and of the best rolling return, the CSV log and its PNG. ``env_factory(index)`` makes the env of
+worker ``index`` (the CLI passes one that walks a distribution of worlds); this module imports no env.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """PPO's settings and the run's size."""
+
+    total_env_steps: int = 20_000
+    """Env steps (rounds of one team) over all workers; agent transitions are this times the team size."""
+    workers: int = 2
+    """Worker processes, each stepping its own env (1: in this process)."""
+    n_steps: int = 32
+    """Rounds per worker and agent between two updates."""
+    batch_size: int = 64
+    n_epochs: int = 4
+    learning_rate: float = 3e-4
+    gamma: float = 0.99
+    gae_lambda: float = 0.95
+    ent_coef: float = 0.01
+    clip_range: float = 0.2
+    seed: int = 0
+    chunk_env_steps: int = 512
+    """A checkpoint, a policy file and a log flush every this many env steps."""
+    rolling: int = 20
+    """Episodes in the rolling mean that picks the best policy."""
+
+
+def same_run(old: dict, new: dict) -> bool:
+    """Whether two runs' settings differ only in how long they train (and the command line that said so)."""
+    def core(settings: dict) -> dict:
+        kept = {k: v for k, v in settings.items() if k not in ("command", "title")}
+        kept["train"] = {k: v for k, v in settings.get("train", {}).items() if k != "total_env_steps"}
+        return kept
+    return core(old) == core(new)
+
+
+def features_extractor_class():
+    """SB3's extractor around ``CommFeatures`` (SB3 imported only when training)."""
+    from stable_baselines3.common.torch_layers import BaseFeaturesExtractor  # noqa: PLC0415
+
+    from policies.network import CommFeatures, NetworkConfig  # noqa: PLC0415
+
+    class SB3CommFeatures(BaseFeaturesExtractor):
+        def __init__(self, observation_space, config: dict):
+            net_config = NetworkConfig.from_dict(config)
+            super().__init__(observation_space, net_config.features)
+            self.net = CommFeatures(net_config)
+
+        def forward(self, observations):
+            return self.net(observations)
+
+    return SB3CommFeatures
+
+
+class EpisodeLog:
+    """Per finished episode (one row per worker env): env steps so far, return, and the final completion and
+    MB from the infos' ``episode_completion`` / ``episode_mb`` (NaN when the env does not give them)."""
+
+    FIELDS = ("env_steps", "worker", "return", "completion", "mb")
+
+    def __init__(self, path: Path, num_agents: int):
+        self.path, self.n = path, num_agents
+        self.rows = list(csv.DictReader(path.open())) if path.exists() else []
+        self.rows = [{k: int(float(v)) if k in ("env_steps", "worker") else float(v) for k, v in r.items()}
+                     for r in self.rows]
+        self.returns: np.ndarray | None = None
+
+    def step(self, rewards: np.ndarray, dones: np.ndarray, infos: list[dict], env_steps: int) -> None:
+        if self.returns is None:
+            self.returns = np.zeros(len(rewards))
+        self.returns += rewards
+        for w in range(len(rewards) // self.n):
+            agents = slice(w * self.n, (w + 1) * self.n)
+            if np.all(dones[agents]):
+                team = infos[agents]
+                self.rows.append({"env_steps": env_steps, "worker": w, "return": float(self.returns[agents].mean()),
+                                  "completion": float(team[0].get("episode_completion", np.nan)),
+                                  "mb": float(team[0].get("episode_mb", np.nan))})
+                self.returns[agents] = 0.0
+
+    def rolling_return(self, window: int) -> float:
+        return float(np.mean([r["return"] for r in self.rows[-window:]])) if self.rows else -np.inf
+
+    def write(self) -> None:
+        tmp = self.path.with_suffix(".tmp")
+        with tmp.open("w", newline="") as f:
+            writer = csv.DictWriter(f, self.FIELDS)
+            writer.writeheader()
+            writer.writerows(self.rows)
+        os.replace(tmp, self.path)
+
+    def plot(self, png: Path, title: str) -> None:
+        import matplotlib  # noqa: PLC0415
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt  # noqa: PLC0415
+
+        if not self.rows:
+            return
+        steps = np.array([r["env_steps"] for r in self.rows])
+        fig, axes = plt.subplots(1, 3, figsize=(13, 3.6))
+        for ax, key, label in zip(axes, ("return", "completion", "mb"),
+                                  ("episode return", "final completion ratio (%)", "MB sent by the team")):
+            values = np.array([r[key] for r in self.rows])
+            ax.plot(steps, values, ".", alpha=0.35, color="tab:blue")
+            k = min(len(values), 10)
+            if k > 1:
+                ax.plot(steps[k - 1:], np.convolve(values, np.ones(k) / k, mode="valid"), color="tab:red",
+                        label=f"mean of {k}")
+                ax.legend(loc="best", fontsize=8)
+            ax.set_xlabel("env steps")
+            ax.set_title(label, fontsize=10)
+            ax.grid(alpha=0.3)
+        fig.suptitle(title, fontsize=10)
+        fig.tight_layout()
+        fig.savefig(png.with_suffix(".tmp.png"), dpi=110)
+        plt.close(fig)
+        os.replace(png.with_suffix(".tmp.png"), png)
+
+
+def export_network(model, network_config: dict):
+    """The trained SB3 policy as a ``CommPolicyNetwork`` (features extractor + action head)."""
+    from policies.network import CommPolicyNetwork, NetworkConfig  # noqa: PLC0415
+
+    network = CommPolicyNetwork(NetworkConfig.from_dict(network_config))
+    network.features.load_state_dict(model.policy.features_extractor.net.state_dict())
+    network.action.load_state_dict(model.policy.action_net.state_dict())
+    return network.eval()
+
+
+def train(env_factory: Callable[[int], object], config: TrainConfig, out: str | Path, training_record: dict,
+          progress: bool = True) -> Path:
+    """Train (or resume) in ``out``; returns the path of the best policy file (``out/best.json``)."""
+    from stable_baselines3 import PPO  # noqa: PLC0415
+    from stable_baselines3.common.callbacks import BaseCallback  # noqa: PLC0415
+
+    from policies.files import save_policy  # noqa: PLC0415
+    from policies.network import NetworkConfig  # noqa: PLC0415
+    from policies.observation import MAP_CHANNELS  # noqa: PLC0415
+    from policies.sb3_vec import sb3_vec_env_from_factory  # noqa: PLC0415
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    settings = {"train": asdict(config), **training_record}
+    settings_path = out / "settings.json"
+    if settings_path.exists() and not same_run(json.loads(settings_path.read_text()), settings):
+        raise ValueError(f"{out} holds a training run with other settings ({settings_path}); resume it with the same "
+                         "settings (--env-steps may grow) or use another --out")
+    settings_path.write_text(json.dumps(settings, indent=2) + "\n")
+
+    # ---- the vector env: every agent of every worker's env one entry, one shared policy -------------------
+    vec, num_agents = sb3_vec_env_from_factory(env_factory, config.workers, config.seed)
+    space = vec.observation_space
+    network_config = NetworkConfig(map_channels=len(MAP_CHANNELS), comm_size=int(space["comm"].shape[0]),
+                                   actions=int(vec.action_space.n)).as_dict()
+
+    # ---- PPO, fresh or from the last checkpoint ----------------------------------------------------------
+    checkpoint = out / "checkpoint.zip"
+    log = EpisodeLog(out / "log.csv", num_agents)
+    if checkpoint.exists():
+        model = PPO.load(checkpoint, env=vec, device="cpu")
+        print(f"[openmulti] resumed training at {model.num_timesteps // num_agents} env steps from {checkpoint}")
+    else:
+        model = PPO("MultiInputPolicy", vec, n_steps=config.n_steps, batch_size=config.batch_size,
+                    n_epochs=config.n_epochs, learning_rate=config.learning_rate, gamma=config.gamma,
+                    gae_lambda=config.gae_lambda, ent_coef=config.ent_coef, clip_range=config.clip_range,
+                    device="cpu", verbose=0,
+                    policy_kwargs=dict(features_extractor_class=features_extractor_class(),
+                                       features_extractor_kwargs=dict(config=network_config),
+                                       net_arch=dict(pi=[], vf=[64])))
+
+    class Logging(BaseCallback):
+        def _on_step(self) -> bool:
+            log.step(np.asarray(self.locals["rewards"], float), np.asarray(self.locals["dones"]),
+                     list(self.locals["infos"]), self.num_timesteps // num_agents)
+            return True
+
+    # ---- learn in chunks: checkpoint, policy files, log after each -----------------------------------------
+    best = log.rolling_return(config.rolling) if (out / "best.json").exists() else -np.inf
+    from tqdm import tqdm  # noqa: PLC0415
+
+    with tqdm(total=config.total_env_steps, initial=min(model.num_timesteps // num_agents, config.total_env_steps),
+              desc="training", unit="env step", disable=not progress) as bar:
+        while model.num_timesteps // num_agents < config.total_env_steps:
+            before = model.num_timesteps
+            model.learn(total_timesteps=config.chunk_env_steps * num_agents, reset_num_timesteps=False,
+                        callback=Logging())
+            model.save(out / "checkpoint.tmp.zip")
+            os.replace(out / "checkpoint.tmp.zip", checkpoint)
+            env_steps = model.num_timesteps // num_agents
+            record = {**settings, "env_steps": env_steps, "episodes": len(log.rows),
+                      "rolling_return": log.rolling_return(config.rolling)}
+            save_policy(out / "latest", export_network(model, network_config), num_agents, record)
+            if log.rows and log.rolling_return(config.rolling) > best:
+                best = log.rolling_return(config.rolling)
+                save_policy(out / "best", export_network(model, network_config), num_agents, record)
+            log.write()
+            log.plot(out / "learning_curve.png", f"{training_record.get('title', 'training')}: {len(log.rows)} "
+                                                 f"episodes, {env_steps} env steps")
+            bar.update((model.num_timesteps - before) // num_agents)
+            bar.set_postfix(episodes=len(log.rows), rolling_return=f"{log.rolling_return(config.rolling):.3f}")
+    vec.close()
+    if not (out / "best.json").exists():
+        save_policy(out / "best", export_network(model, network_config), num_agents,
+                    {**settings, "env_steps": model.num_timesteps // num_agents, "episodes": len(log.rows)})
+    return out / "best.json"

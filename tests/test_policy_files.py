@@ -1,0 +1,120 @@
+"""Observation-driven and learned policies: novelty's decisions, policy files (round trip, refusals), and
+training that writes a policy, its log and curve, and resumes."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from policies import PolicyError, make_policy, parse_policy
+from policies.files import load_policy, policy_paths, save_policy
+from policies.network import CommPolicyNetwork, NetworkConfig
+from policies.observation import AGE_SCALE, AGENT_FEATURES, LINK_FEATURES, MAP_CHANNELS, comm_size
+
+
+def observation(num_agents=3, size=16, budget_left=1.0, progress=0.5, **links):
+    """A synthetic observation: every link feature 0 unless given as a per-peer list."""
+    peers = num_agents - 1
+    table = np.zeros((peers, len(LINK_FEATURES)), np.float32)
+    for name, values in links.items():
+        table[:, LINK_FEATURES.index(name)] = values
+    agent = np.array([{"budget_left": budget_left, "progress": progress}[f] for f in AGENT_FEATURES], np.float32)
+    return {"map": np.zeros((size, size, len(MAP_CHANNELS)), np.uint8), "comm": np.concatenate([table.ravel(), agent])}
+
+
+def test_novelty_sends_what_peers_lack_or_what_moved_and_paces_a_budget():
+    policy = make_policy("novelty:change=0.1,gap=2", 3)
+    assert policy.reads_observations
+    lacks = observation(holds=[1.0, 0.5], change=[0.0, 0.0], since_params=[2 / AGE_SCALE, 2 / AGE_SCALE])
+    np.testing.assert_array_equal(policy.act(lacks), [0, 1, 1, 1])  # rays to peers that hold my parameters
+    moved = observation(holds=[1.0, 1.0], change=[0.3, 0.05], since_params=[1.0, 1.0])
+    np.testing.assert_array_equal(policy.act(moved)[:2], [1, 0])
+    too_soon = observation(holds=[1.0, 1.0], change=[0.3, 0.3], since_params=[0.0, 1 / AGE_SCALE])
+    np.testing.assert_array_equal(policy.act(too_soon)[:2], [0, 1])  # gap=2: one round between messages
+    ahead = observation(holds=[0.0, 0.0], change=[1.0, 1.0], since_params=[1.0, 1.0], budget_left=0.2, progress=0.3)
+    np.testing.assert_array_equal(policy.act(ahead), [0, 0, 0, 0])  # 80 % spent at 30 % of the path
+    assert make_policy("novelty:rays=never", 3).act(lacks)[2:].tolist() == [0, 0]
+
+
+def test_fixed_rate_schedules():
+    every = make_policy("every:3", 4)
+    sends = [every(None, None, step)["agent_0"].sum() for step in range(6)]
+    assert sends == [6, 0, 0, 6, 0, 0]
+    rate = [make_policy("rate:0.25", 4, seed=s)(None, None, 0) for s in (1, 1, 2)]
+    assert all(np.array_equal(rate[0][a], rate[1][a]) for a in rate[0])  # seeded
+    draws = np.concatenate([make_policy("rate:0.25", 4, seed=s)(None, None, 0)["agent_1"] for s in range(200)])
+    assert abs(draws.mean() - 0.25) < 0.05
+
+
+@pytest.mark.parametrize("bad, message", [("every:0", "K >= 1"), ("rate:1.5", "Q in \\[0, 1\\]"),
+                                          ("novelty:speed=2", "name=value pairs"), ("novelty:rays=maybe", "rays must"),
+                                          ("sometimes", "unknown policy"), ("runs/x/best.json", "does not exist")])
+def test_bad_policy_names_say_what_is_wrong(bad, message):
+    with pytest.raises(PolicyError, match=message):
+        parse_policy(bad)
+
+
+def _network(num_agents=3, seed=0):
+    torch = pytest.importorskip("torch")
+    torch.manual_seed(seed)
+    return CommPolicyNetwork(NetworkConfig(len(MAP_CHANNELS), comm_size(num_agents), 2 * (num_agents - 1)))
+
+
+def test_policy_files_round_trip_and_refuse_what_does_not_fit(tmp_path):
+    network = _network()
+    path = save_policy(tmp_path / "p", network, 3, {"command": "test"})
+    assert policy_paths(path) == (tmp_path / "p.json", tmp_path / "p.safetensors")
+    policy = make_policy(str(path), 3)
+    rng = np.random.default_rng(0)
+    obs = {f"agent_{i}": {"map": rng.integers(0, 256, (16, 16, len(MAP_CHANNELS)), dtype=np.uint8),
+                          "comm": rng.random(comm_size(3)).astype(np.float32)} for i in range(3)}
+    expected = network.act(np.stack([o["map"] for o in obs.values()]), np.stack([o["comm"] for o in obs.values()]))
+    actions = policy(obs, None, 0)
+    assert all(np.array_equal(actions[f"agent_{i}"], expected[i]) for i in range(3))
+    with pytest.raises(PolicyError, match="for 3 agents; the team has 4"):
+        make_policy(str(path), 4)
+    record = json.loads(path.read_text())
+    other = {**record, "observation": {**record["observation"], "map_channels": ["height"]}}
+    (tmp_path / "layout.json").write_text(json.dumps(other))
+    (tmp_path / "layout.safetensors").write_bytes((tmp_path / "p.safetensors").read_bytes())
+    with pytest.raises(PolicyError, match="another observation layout"):
+        load_policy(tmp_path / "layout.json")
+    blob = (tmp_path / "p.safetensors").read_bytes()
+    (tmp_path / "p.safetensors").write_bytes(blob[:len(blob) // 2])
+    with pytest.raises(PolicyError, match="changed or truncated"):
+        load_policy(path)
+    (tmp_path / "p.safetensors").write_bytes(blob[:-1] + bytes([blob[-1] ^ 1]))
+    with pytest.raises(PolicyError, match="changed or truncated"):
+        load_policy(path)
+    path.write_text(path.read_text()[:40])
+    with pytest.raises(PolicyError, match="not valid JSON"):
+        load_policy(path)
+    (tmp_path / "p.json").unlink()
+    with pytest.raises(PolicyError, match="is missing"):
+        load_policy(tmp_path / "p.safetensors")
+
+
+def test_training_writes_a_policy_a_log_and_a_curve_and_resumes(tmp_path):
+    pytest.importorskip("stable_baselines3")
+    pytest.importorskip("supersuit")
+    from openmulti_env.runs.train import WorkerEnvs
+    from policies.train import TrainConfig, train
+
+    factory = WorkerEnvs(("tiny",), workers=1, env_kwargs={"preset": "rl_tiny", "comm_cost_per_mb": 0.01,
+                                                            "cache_dir": str(tmp_path / "worlds")})
+    config = TrainConfig(total_env_steps=16, workers=1, n_steps=8, batch_size=16, n_epochs=1, chunk_env_steps=8)
+    best = train(factory, config, tmp_path / "run", {"command": "test"}, progress=False)
+    rows = (tmp_path / "run" / "log.csv").read_text().splitlines()
+    assert rows[0] == "env_steps,worker,return,completion,mb" and len(rows) == 3  # two 8-step episodes
+    completion = float(rows[1].split(",")[3])
+    assert 0 < completion < 100
+    assert (tmp_path / "run" / "learning_curve.png").stat().st_size > 0
+    policy = make_policy(str(best), 2)
+    assert policy.record["training"]["env_steps"] == 16
+    train(factory, TrainConfig(**{**config.__dict__, "total_env_steps": 24}), tmp_path / "run", {"command": "test"},
+          progress=False)
+    assert json.loads((tmp_path / "run" / "latest.json").read_text())["training"]["env_steps"] == 24
+    with pytest.raises(ValueError, match="other settings"):
+        train(factory, TrainConfig(**{**config.__dict__, "learning_rate": 1.0}), tmp_path / "run", {}, progress=False)
