@@ -48,8 +48,10 @@ def test_every_method_runs_two_rounds_on_the_tiny_world_and_writes_a_row(tmp_pat
 def _fake_run(calls):
     def run(scene, agents, policy, preset, seed, out, **kwargs):
         calls.append((scene, policy, seed, kwargs.get("global_map")))
-        return {"mean": {"acc_cm": 2.0 + seed, "comp_cm": 3.0, "comp_ratio": 80.0 - 10 * kwargs["global_map"],
-                         "f_miou": 50.0, "f_macc": 60.0},
+        quiet = {"never": 0.0, "every:2": 0.5}.get(policy, 1.0)  # share of always's bytes
+        return {"mean": {"acc_cm": 2.0 + seed, "comp_cm": 3.0, "comp_ratio": 80.0 - 10 * kwargs["global_map"]
+                         - 30 * (1 - quiet) - seed, "f_miou": 50.0, "f_macc": 60.0},
+                "bytes_sent_total": int(24000 * quiet),
                 "team": {"f_miou": 55.0, "f_macc": 65.0}, "config": {"agents": agents}, "rounds": 4,
                 "bytes_per_round": [4000, 4000, 8000, 8000], "fleet_s": 8.0, "compute_s": {"agent_0": 3.0},
                 "agents": {"agent_0": {"instances": 5}}, "wall_s": 1.0, "map": {"kind": "x"}}
@@ -206,3 +208,24 @@ def test_free_space_culling_and_unculled_scoring_on_a_hand_made_box():
     scores = score_three_ways(rec, gt, viewpoints, None, seed=0)
     assert scores["acc_cm"] < 1.0 < scores["acc_cm_unculled"]  # the inner box costs accuracy unculled only
     assert scores["comp_ratio"] == pytest.approx(100.0) and "acc_cm_nice" not in scores
+
+
+def test_tradeoff_table_runs_each_policy_on_each_scene_and_marks_the_pareto_front(tmp_path):
+    from openmulti_env.runs.reproduce.tradeoff import pareto_front
+
+    calls = []
+    written = reproduce("tradeoff", ["tiny"], [0, 1], "tiny", tmp_path, run_fn=_fake_run(calls), progress=False,
+                        methods=["always", "never", "every:2"])
+    assert sorted({c[1] for c in calls}) == ["always", "every:2", "never"] and len(calls) == 6
+    rows = written["tradeoff"]
+    assert {r["policy"] for r in rows} == {"always", "never", "every:2"}
+    data = json.loads((tmp_path / "tradeoff.json").read_text())
+    means = {m["policy"]: m for m in data["policies"]}
+    assert means["every:2"]["bytes_vs_always"] == pytest.approx(0.5)
+    assert means["every:2"]["delta_vs_always"] == pytest.approx(-15.0)
+    md = (tmp_path / "tradeoff.md").read_text()
+    assert "| every:2 | 2 | 64.5 ± 0.7 | 0.0 ± 0.0 | 50 % | -15.0 | yes |" in md
+    assert (tmp_path / "tradeoff.png").stat().st_size > 1000
+    assert pareto_front([(1.0, 50.0), (2.0, 40.0), (3.0, 60.0)]) == [0, 2]
+    with pytest.raises(ValueError, match="not in table 'tradeoff'"):
+        reproduce("tradeoff", ["tiny"], [0], "tiny", tmp_path, run_fn=_fake_run([]), methods=["sometimes"])

@@ -258,8 +258,10 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("reproduce", help="the paper's experiments: Tables I and III-VI (and the semantic table)",
                        formatter_class=fmt)
     p.add_argument("--table", required=True, help="geometric, multi-vs-single, semantic, ablation, comm-failure, "
-                   "transmission or all")
-    p.add_argument("--scenes", nargs="+", default=["room0"], metavar="S", help="scenes of the grid")
+                   "transmission, all (the paper's six), or tradeoff (completion against MB of every scripted "
+                   "policy and the learned one)")
+    p.add_argument("--scenes", nargs="+", metavar="S", help="scenes of the grid (default: room0; tradeoff: room0 "
+                   "office0 room2)")
     p.add_argument("--seeds", nargs="+", type=int, default=[0], metavar="K", help="seeds of the grid")
     p.add_argument("--preset", choices=RUN_PRESETS, default="fast", help="episode size of every run")
     p.add_argument("--agents", type=_agents, default=4, help="agents of the team methods (single_agent has 1)")

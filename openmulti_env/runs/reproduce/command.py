@@ -11,18 +11,19 @@ import time
 from pathlib import Path
 
 from openmulti_env.runs.reproduce.runner import check_scenes, run_table
-from openmulti_env.runs.reproduce.tables import TABLES, table_runs
+from openmulti_env.runs.reproduce.tables import TABLES, TRADEOFF, TRADEOFF_SCENES, table_runs
+from openmulti_env.runs.reproduce.tradeoff import write_tradeoff
 from openmulti_env.runs.reproduce.writers import write_table
 
 
-def reproduce(table: str, scenes: list[str], seeds: list[int], preset: str, out: str | Path, agents: int = 4,
+def reproduce(table: str, scenes: list[str] | None, seeds: list[int], preset: str, out: str | Path, agents: int = 4,
               threads: int | None = 1, device: str = "cpu", three_cullings: bool = True,
               max_rounds: int | None = None, progress: bool = True, run_fn=None,
               methods: list[str] | None = None, run_missing: bool = True) -> dict[str, list[dict]]:
     """Run ``table`` (one of ``TABLES`` or ``all``) and write ``OUT/T.json``, ``.md`` and ``.png``.
 
     Args:
-        methods: run only these of the tables' methods (e.g. to split one table over two processes
+        methods: run only these of the tables' methods (the trade-off table's: its policies) (e.g. to split one table over two processes
             sharing ``out``: rows are keyed, so each process makes its own and both tables read all).
         run_missing: False writes the tables from the runs already finished and makes none.
 
@@ -30,14 +31,16 @@ def reproduce(table: str, scenes: list[str], seeds: list[int], preset: str, out:
     listing the known ones, before any run starts.
     """
     names = list(TABLES) if table == "all" else [table]
+    if not scenes:  # the paper's tables on room0; the trade-off on its three held-out scenes
+        scenes = list(TRADEOFF_SCENES) if table == TRADEOFF else ["room0"]
     specs = {name: table_runs(name, scenes, seeds, agents) for name in names}  # checks the table names
     check_scenes(scenes)
     if methods is not None:
-        offered = sorted({s.method for runs in specs.values() for s in runs})
+        offered = sorted({s.schedule or s.method for runs in specs.values() for s in runs})
         unknown = [m for m in methods if m not in offered]
         if unknown:
             raise ValueError(f"methods {unknown} are not in table {table!r}; its methods: {', '.join(offered)}")
-        specs = {name: [s for s in runs if s.method in methods] for name, runs in specs.items()}
+        specs = {name: [s for s in runs if (s.schedule or s.method) in methods] for name, runs in specs.items()}
         names = [name for name in names if specs[name]]
     out = Path(out)
     start = time.perf_counter()
@@ -49,7 +52,9 @@ def reproduce(table: str, scenes: list[str], seeds: list[int], preset: str, out:
         notes = (f"Preset `{preset}`, {agents} agents, machine: {platform.machine()} {platform.processor() or ''}"
                  f" ({_cores()} cores), torch threads {threads}; the table's {len(rows)} runs took {made:.0f} s "
                  f"of wall time in all (each when it was made); this command: {time.perf_counter() - start:.0f} s.")
-        if rows:
+        if rows and name == TRADEOFF:
+            write_tradeoff(out, rows, notes)
+        elif rows:
             write_table(out, name, rows, notes)
         written[name] = rows
     return written

@@ -41,7 +41,19 @@ def run_settings(spec: RunSpec, preset: str, three_cullings: bool, max_rounds: i
     return {"method": spec.method, "scene": spec.scene, "seed": spec.seed, "agents": spec.agents,
             "success_rate": spec.success_rate, "preset": preset, "policy": spec.policy,
             "options": METHODS[spec.method].run_options(), "three_cullings": three_cullings, "max_rounds": max_rounds,
-            "defaults": library_defaults(preset)}
+            "defaults": library_defaults(preset), **policy_identity(spec.policy)}
+
+
+def policy_identity(policy: str) -> dict:
+    """For a trained policy, the SHA-256 of its weights: a row made with other weights is redone."""
+    from policies import parse_policy  # noqa: PLC0415
+    from policies.learned import SHIPPED  # noqa: PLC0415
+
+    spec = parse_policy(policy)
+    if spec.rule not in ("learned", "file"):
+        return {}
+    path = SHIPPED if spec.rule == "learned" else Path(policy)
+    return {"policy_sha256": json.loads(path.read_text()).get("sha256")}
 
 
 def library_defaults(preset: str) -> dict:
@@ -61,7 +73,8 @@ def row_from_metrics(spec: RunSpec, metrics: dict) -> dict:
     per_round = [b / n for b in metrics["bytes_per_round"]]
     is_global = METHODS[spec.method].global_map
     row = {"method": spec.method, "scene": spec.scene, "seed": spec.seed, "agents": spec.agents,
-           "success_rate": spec.success_rate,
+           "success_rate": spec.success_rate, "policy": spec.policy,
+           "mb_total": metrics["bytes_sent_total"] / 1e6,
            **{k: v for k, v in mean.items() if k not in ("f_miou", "f_macc")},
            "f_miou": None if is_global else mean.get("f_miou"), "f_macc": None if is_global else mean.get("f_macc"),
            "team_f_miou": None if is_global else metrics["team"]["f_miou"],

@@ -12,7 +12,13 @@ from dataclasses import dataclass
 from openmulti_env.runs.reproduce.methods import METHODS, TABLE_I_METHODS
 
 TABLES = ("geometric", "multi-vs-single", "semantic", "ablation", "comm-failure", "transmission")
-"""``all`` runs every one of them (runs shared between tables are made once)."""
+"""The paper's tables: ``all`` runs every one of them (runs shared between tables are made once)."""
+TRADEOFF = "tradeoff"
+"""Completion against bytes of communication schedules (``openmulti`` with each policy); not in ``all``."""
+TRADEOFF_POLICIES = ("always", "never", "every:2", "every:3", "every:4", "rate:0.25", "rate:0.5", "novelty",
+                     "novelty:change=0.05", "novelty:change=0.2", "learned")
+"""The policies of the trade-off table (``learned`` only when a trained policy ships)."""
+TRADEOFF_SCENES = ("room0", "office0", "room2")
 FAILURE_RATES = (1.0, 0.8, 0.5, 0.2)
 """Link success rates of Table V."""
 
@@ -26,9 +32,13 @@ class RunSpec:
     seed: int
     agents: int
     success_rate: float = 1.0
+    schedule: str | None = None
+    """A communication policy in place of the method's (the trade-off table)."""
 
     @property
     def policy(self) -> str:
+        if self.schedule is not None:
+            return self.schedule
         base = METHODS[self.method].policy
         if self.success_rate >= 1.0 or base == "never":
             return base
@@ -37,13 +47,21 @@ class RunSpec:
     def key(self, preset: str) -> str:
         """The run's name on disk: every setting that changes its result."""
         rate = f"_p{round(self.success_rate * 100):03d}" if self.success_rate < 1.0 else ""
-        return f"{self.method}_{self.scene}_s{self.seed}_a{self.agents}{rate}_{preset}".replace(":", "-").replace("/", "-")
+        schedule = "" if self.schedule is None else "_pol-" + self.schedule.replace("=", "").replace(",", "-")
+        key = f"{self.method}_{self.scene}_s{self.seed}_a{self.agents}{rate}{schedule}_{preset}"
+        return key.replace(":", "-").replace("/", "-")
 
 
 def table_runs(table: str, scenes: list[str], seeds: list[int], agents: int = 4) -> list[RunSpec]:
     """The runs of ``table`` (ValueError listing the known tables)."""
+    if table == TRADEOFF:
+        from policies.learned import SHIPPED  # noqa: PLC0415
+
+        policies = [p for p in TRADEOFF_POLICIES if p != "learned" or SHIPPED.is_file()]
+        return [RunSpec("openmulti", scene, seed, agents, schedule=p) for scene in scenes for seed in seeds
+                for p in policies]
     if table not in TABLES:
-        raise ValueError(f"unknown table {table!r}; known tables: {', '.join(TABLES)}, all")
+        raise ValueError(f"unknown table {table!r}; known tables: {', '.join(TABLES)}, all, {TRADEOFF}")
     methods = {"geometric": TABLE_I_METHODS,
                "multi-vs-single": ("single_agent", "openmulti"),
                "semantic": ("single", "openmulti_no_alignment", "openmulti"),
