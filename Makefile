@@ -8,6 +8,8 @@ PRESET ?= demo
 OUT ?= runs/demo
 POLICY ?= always
 ALIGNMENT ?= paper
+# pytest-xdist processes for `make test` (auto: one per core)
+TEST_WORKERS ?= auto
 
 .PHONY: setup demo test bench clean
 
@@ -18,7 +20,7 @@ demo: setup
 	$(VENV)/bin/openmulti run --scene $(SCENE) --agents $(AGENTS) --policy $(POLICY) --alignment $(ALIGNMENT) --preset $(PRESET) --out $(OUT)
 
 test: setup
-	$(PY) -m pytest tests
+	$(PY) -m pytest tests -n $(TEST_WORKERS) --dist worksteal
 
 bench: setup
 	$(PY) benchmarks/bench_world.py
