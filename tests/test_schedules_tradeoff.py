@@ -1,0 +1,30 @@
+"""The held-out comparison's arithmetic: the fixed-rate front at equal bytes and the paired summary."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from benchmarks.schedules_tradeoff import front_at, load_rows, summary
+
+
+def test_front_is_the_upper_envelope_read_at_equal_bytes():
+    points = [(0.0, 10.0), (40.0, 50.0), (60.0, 40.0), (100.0, 60.0), (50.0, 52.0)]
+    assert front_at(points, 0.0) == pytest.approx(10.0)
+    assert front_at(points, 20.0) == pytest.approx(30.0)  # between never and every:3-like
+    assert front_at(points, 60.0) > 52.0  # the dominated (60, 40) is not on the front
+    assert front_at(points, 100.0) == pytest.approx(60.0) and front_at(points, 500.0) == pytest.approx(60.0)
+
+
+def test_summary_pairs_each_policy_with_always_and_the_front(tmp_path):
+    rows = []
+    for seed, scale in ((0, 1.0), (1, 0.9)):
+        for policy, comp, mb in (("always", 60, 100), ("never", 10, 0), ("every:2", 55, 50), ("p.json", 58, 50)):
+            rows.append({"setting": "s", "policy": policy, "seed": seed, "completion": comp * scale, "mb": mb})
+    path = tmp_path / "rows.jsonl"
+    path.write_text("\n".join(json.dumps(r) for r in rows))
+    text = summary(load_rows(path))
+    line = next(ln for ln in text.splitlines() if ln.startswith("| p |"))
+    assert "50 %" in line and "+2.9 (min +2.7" in line  # 58 vs 55 and 52.2 vs 49.5 at the same bytes
+    assert text.startswith("2 episodes")
