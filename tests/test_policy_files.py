@@ -4,6 +4,7 @@ training that writes a policy, its log and curve, and resumes."""
 from __future__ import annotations
 
 import json
+import os
 
 import numpy as np
 import pytest
@@ -66,6 +67,9 @@ def test_policy_files_round_trip_and_refuse_what_does_not_fit(tmp_path):
     network = _network()
     path = save_policy(tmp_path / "p", network, 3, {"command": "test"})
     assert policy_paths(path) == (tmp_path / "p.json", tmp_path / "p.safetensors")
+    umask = os.umask(0)
+    os.umask(umask)
+    assert all(part.stat().st_mode & 0o777 == 0o666 & ~umask for part in policy_paths(path))  # not mkstemp's 0600
     policy = make_policy(str(path), 3)
     rng = np.random.default_rng(0)
     obs = {f"agent_{i}": {"map": rng.integers(0, 256, (16, 16, len(MAP_CHANNELS)), dtype=np.uint8),
