@@ -49,7 +49,9 @@ def load_rows(path: Path) -> dict[tuple[str, int], dict[str, dict]]:
 
 
 def short(policy: str) -> str:
-    return Path(policy).stem if policy.endswith(".json") else policy
+    """A policy file by its stem (``runs/x/best.json:mode`` -> ``best:mode``)."""
+    base, mode = (policy[:-len(":mode")], ":mode") if policy.endswith(":mode") else (policy, "")
+    return Path(base).stem + mode if base.endswith(".json") else policy
 
 
 def summary(episodes: dict[tuple[str, int], dict[str, dict]]) -> str:

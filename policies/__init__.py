@@ -22,7 +22,7 @@ def make_policy(name: str | PolicySpec, num_agents: int, seed: int = 0):
     elif spec.rule in ("learned", "file"):
         from policies.learned import LearnedPolicy  # noqa: PLC0415
 
-        policy = LearnedPolicy.load(spec.name, num_agents)
+        policy = LearnedPolicy.load(spec.settings["path"], num_agents, seed if spec.settings["act"] == "sample" else None)
     else:
         return ScriptedPolicy(spec, num_agents, seed)
     policy.spec = spec

@@ -1,7 +1,9 @@
 """A trained communication policy: ``--policy learned`` (the one shipped in ``policies/trained/``) or a file.
 
-Acts on every agent's observation with one shared network (parameter sharing, as it was trained), taking
-the mode of each action entry (logit > 0): a deployed schedule is deterministic.
+Acts on every agent's observation with one shared network (parameter sharing, as it was trained), drawing
+each action entry from its Bernoulli with a seeded generator: the policy PPO trained. Its mode (logit > 0,
+``learned:mode``) is another policy: a network that learned to send each entry a third of the time has the
+mode "never send".
 """
 
 from __future__ import annotations
@@ -23,18 +25,20 @@ class LearnedPolicy:
 
     reads_observations = True
 
-    def __init__(self, network, record: dict, source: str):
+    def __init__(self, network, record: dict, source: str, seed: int | None = 0):
         self.network, self.record, self.source = network, record, source
+        self.rng = None if seed is None else np.random.default_rng(seed)
 
     @staticmethod
-    def load(name: str, num_agents: int) -> "LearnedPolicy":
-        """``learned`` or a path (PolicyError when the file is missing or does not fit)."""
+    def load(name: str, num_agents: int, seed: int | None = 0) -> "LearnedPolicy":
+        """``learned`` or a path (PolicyError when the file is missing or does not fit); ``seed`` drives the
+        draws (None: the mode of each entry)."""
         path = SHIPPED if name == "learned" else Path(name)
         if name == "learned" and not SHIPPED.is_file():
             raise PolicyError("no trained policy ships with this version yet (policies/trained/learned.json); train "
                               "one with `openmulti train` and pass its file to --policy")
         network, record = load_policy(path, num_agents)
-        return LearnedPolicy(network, record, str(path))
+        return LearnedPolicy(network, record, str(path), seed)
 
     def __call__(self, observations: Mapping[str, Mapping[str, np.ndarray]], infos=None,
                  step: int = 0) -> dict[str, np.ndarray]:
@@ -47,5 +51,5 @@ class LearnedPolicy:
         if maps.shape[-1] != config.map_channels or comms.shape[-1] != config.comm_size:
             raise PolicyError(f"{self.source} takes maps of {config.map_channels} channels and comm vectors of "
                               f"{config.comm_size}; the env gives {maps.shape[-1]} and {comms.shape[-1]}")
-        actions = self.network.act(maps, comms)
+        actions = self.network.act(maps, comms, self.rng)
         return {a: actions[k] for k, a in enumerate(agents)}

@@ -75,6 +75,10 @@ class CommPolicyNetwork(nn.Module):
         self.action = nn.Linear(config.features, config.actions)
 
     @torch.no_grad()
-    def act(self, map_hwc: np.ndarray, comm: np.ndarray) -> np.ndarray:
-        """The mode of each Bernoulli entry (logit > 0): (B, actions) int8."""
-        return (self.action(self.features.observe(map_hwc, comm)) > 0).cpu().numpy().astype(np.int8)
+    def act(self, map_hwc: np.ndarray, comm: np.ndarray, rng: np.random.Generator | None = None) -> np.ndarray:
+        """(B, actions) int8: each Bernoulli entry drawn with ``rng`` (the policy as trained), or its mode
+        (logit > 0) when ``rng`` is None."""
+        logits = self.action(self.features.observe(map_hwc, comm)).double().cpu().numpy()
+        if rng is None:
+            return (logits > 0).astype(np.int8)
+        return (rng.random(logits.shape) < 1.0 / (1.0 + np.exp(-logits))).astype(np.int8)

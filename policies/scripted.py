@@ -30,7 +30,7 @@ import numpy as np
 
 SCRIPTED_POLICIES = ("always", "never", "round_robin", "budget")
 POLICY_FORMS = "always, never, round_robin, budget, every:K, rate:Q, bernoulli:P, novelty[:settings], learned or " \
-               "a trained policy file"
+               "a trained policy file (either with :mode for the deterministic mode of each entry)"
 
 
 class PolicyError(ValueError):
@@ -80,10 +80,11 @@ def parse_policy(name: str) -> PolicySpec:
         except ValueError as exc:
             raise PolicyError(f"policy {name!r}: {exc}") from None
         return PolicySpec(name, "novelty", settings={"novelty": settings})
-    if name == "learned":
-        return PolicySpec(name, "learned")
-    if Path(name).is_file():
-        return PolicySpec(name, "file")
+    base, mode = (name[:-len(":mode")], "mode") if name.endswith(":mode") else (name, "sample")
+    if base == "learned":
+        return PolicySpec(name, "learned", settings={"path": "learned", "act": mode})
+    if Path(base).is_file():
+        return PolicySpec(name, "file", settings={"path": base, "act": mode})
     if name.endswith((".json", ".safetensors")) or "/" in name:
         raise PolicyError(f"policy file {name!r} does not exist")
     raise PolicyError(f"unknown policy {name!r}: use {POLICY_FORMS}")

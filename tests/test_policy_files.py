@@ -70,13 +70,22 @@ def test_policy_files_round_trip_and_refuse_what_does_not_fit(tmp_path):
     umask = os.umask(0)
     os.umask(umask)
     assert all(part.stat().st_mode & 0o777 == 0o666 & ~umask for part in policy_paths(path))  # not mkstemp's 0600
-    policy = make_policy(str(path), 3)
     rng = np.random.default_rng(0)
     obs = {f"agent_{i}": {"map": rng.integers(0, 256, (16, 16, len(MAP_CHANNELS)), dtype=np.uint8),
                           "comm": rng.random(comm_size(3)).astype(np.float32)} for i in range(3)}
-    expected = network.act(np.stack([o["map"] for o in obs.values()]), np.stack([o["comm"] for o in obs.values()]))
-    actions = policy(obs, None, 0)
-    assert all(np.array_equal(actions[f"agent_{i}"], expected[i]) for i in range(3))
+    maps, comms = np.stack([o["map"] for o in obs.values()]), np.stack([o["comm"] for o in obs.values()])
+    # ':mode' is each entry's mode; the file itself draws each entry as trained, seeded
+    mode = make_policy(f"{path}:mode", 3)(obs, None, 0)
+    assert all(np.array_equal(mode[f"agent_{i}"], network.act(maps, comms)[i]) for i in range(3))
+    drawn = make_policy(str(path), 3, seed=5)(obs, None, 0)
+    again = network.act(maps, comms, np.random.default_rng(5))
+    assert all(np.array_equal(drawn[f"agent_{i}"], again[i]) for i in range(3))
+    torch = pytest.importorskip("torch")
+    with torch.no_grad():
+        probs = torch.sigmoid(network.action(network.features.observe(maps, comms))).numpy()
+    policy = make_policy(str(path), 3, seed=1)
+    mean = np.mean([np.stack(list(policy(obs, None, t).values())) for t in range(400)], axis=0)
+    np.testing.assert_allclose(mean, probs, atol=0.1)  # the draws follow the network's probabilities
     with pytest.raises(PolicyError, match="for 3 agents; the team has 4"):
         make_policy(str(path), 4)
     record = json.loads(path.read_text())

@@ -52,7 +52,7 @@ def policy_identity(policy: str) -> dict:
     spec = parse_policy(policy)
     if spec.rule not in ("learned", "file"):
         return {}
-    path = SHIPPED if spec.rule == "learned" else Path(policy)
+    path = SHIPPED if spec.rule == "learned" else Path(spec.settings["path"])
     return {"policy_sha256": json.loads(path.read_text()).get("sha256")}
 
 
