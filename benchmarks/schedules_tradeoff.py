@@ -85,7 +85,7 @@ def plot(episodes: dict[tuple[str, int], dict[str, dict]], out: Path) -> None:
     settings = sorted({s for s, _ in episodes})
     policies = sorted({p for rows in episodes.values() for p in rows}, key=lambda p: (not is_fixed_rate(p), p))
     fig, axes = plt.subplots(1, len(settings), figsize=(5 * len(settings), 4.2), squeeze=False)
-    colours = {p: plt.cm.tab10(i % 10) for i, p in enumerate(policies)}
+    colours = {p: plt.cm.tab20(i % 20) for i, p in enumerate(policies)}
     for ax, setting in zip(axes[0], settings):
         for p in policies:
             pts = [(rows[p]["mb"], rows[p]["completion"]) for (s, _), rows in episodes.items() if s == setting and p in rows]

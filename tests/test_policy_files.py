@@ -131,3 +131,19 @@ def test_training_writes_a_policy_a_log_and_a_curve_and_resumes(tmp_path):
     assert json.loads((tmp_path / "run" / "latest.json").read_text())["training"]["env_steps"] == 24
     with pytest.raises(ValueError, match="other settings"):
         train(factory, TrainConfig(**{**config.__dict__, "learning_rate": 1.0}), tmp_path / "run", {}, progress=False)
+
+
+def test_the_shipped_policy_loads_acts_for_four_agents_and_refuses_other_teams():
+    pytest.importorskip("torch")
+    from policies.learned import SHIPPED
+
+    assert SHIPPED.is_file() and SHIPPED.with_suffix(".safetensors").is_file()
+    policy = make_policy("learned", 4, seed=0)
+    assert policy.record["num_agents"] == 4 and "openmulti train" in policy.record["training"]["command"]
+    rng = np.random.default_rng(0)
+    obs = {f"agent_{i}": {"map": rng.integers(0, 256, (48, 48, len(MAP_CHANNELS)), dtype=np.uint8),
+                          "comm": rng.random(comm_size(4)).astype(np.float32)} for i in range(4)}
+    actions = policy(obs, None, 0)
+    assert set(actions) == set(obs) and all(a.shape == (6,) and set(a.tolist()) <= {0, 1} for a in actions.values())
+    with pytest.raises(PolicyError, match="for 4 agents; the team has 3"):
+        make_policy("learned", 3)
