@@ -324,8 +324,8 @@ resumable (the same --out continues it) and writes the best policy as a .json + 
 
 On a laptop (2 cores): a smoke run in minutes,
   openmulti train --preset rl_tiny --agents 2 --env-steps 256 --workers 1 --out runs/train_smoke
-and the shipped policy's run (hours; see policies/trained/README.md for its exact command),
-  openmulti train --preset rl_small --env-steps 10000 --workers 2 --out runs/train_rl_small
+and the shipped policy's run (about an hour; policies/trained/README.md records it),
+  openmulti train --preset rl_small --env-steps 4096 --workers 2 --comm-cost-per-mb 0.01 --out runs/train_rl_small
 On a cluster: more --workers (one process each; more cores, more env steps per hour); the RLlib backend
 on Ray is the Ray issue's work and is not in this version."""
 
