@@ -81,4 +81,4 @@ class CommPolicyNetwork(nn.Module):
         logits = self.action(self.features.observe(map_hwc, comm)).double().cpu().numpy()
         if rng is None:
             return (logits > 0).astype(np.int8)
-        return (rng.random(logits.shape) < 1.0 / (1.0 + np.exp(-logits))).astype(np.int8)
+        return (rng.random(logits.shape) < 0.5 * (1.0 + np.tanh(0.5 * logits))).astype(np.int8)  # sigmoid, no overflow
