@@ -85,8 +85,8 @@ def parse_policy(name: str) -> PolicySpec:
         return PolicySpec(name, "learned", settings={"path": "learned", "act": mode})
     if Path(base).is_file():
         return PolicySpec(name, "file", settings={"path": base, "act": mode})
-    if name.endswith((".json", ".safetensors")) or "/" in name:
-        raise PolicyError(f"policy file {name!r} does not exist")
+    if base.endswith((".json", ".safetensors")) or "/" in base:
+        raise PolicyError(f"policy file {base!r} does not exist")
     raise PolicyError(f"unknown policy {name!r}: use {POLICY_FORMS}")
 
 

@@ -51,7 +51,8 @@ def test_fixed_rate_schedules():
 
 @pytest.mark.parametrize("bad, message", [("every:0", "K >= 1"), ("rate:1.5", "Q in \\[0, 1\\]"),
                                           ("novelty:speed=2", "name=value pairs"), ("novelty:rays=maybe", "rays must"),
-                                          ("sometimes", "unknown policy"), ("runs/x/best.json", "does not exist")])
+                                          ("sometimes", "unknown policy"), ("runs/x/best.json", "does not exist"),
+                                          ("runs/x/best.json:mode", "file .runs/x/best.json. does not exist")])
 def test_bad_policy_names_say_what_is_wrong(bad, message):
     with pytest.raises(PolicyError, match=message):
         parse_policy(bad)
