@@ -48,6 +48,11 @@ def load_rows(path: Path) -> dict[tuple[str, int], dict[str, dict]]:
     return episodes
 
 
+def policy_names(episodes: dict[tuple[str, int], dict[str, dict]]) -> list[str]:
+    """Every policy in the rows, fixed-rate ones first."""
+    return sorted({p for rows in episodes.values() for p in rows}, key=lambda p: (not is_fixed_rate(p), p))
+
+
 def short(policy: str) -> str:
     """A policy file by its stem (``runs/x/best.json:mode`` -> ``best:mode``)."""
     base, mode = (policy[:-len(":mode")], ":mode") if policy.endswith(":mode") else (policy, "")
@@ -56,7 +61,7 @@ def short(policy: str) -> str:
 
 def summary(episodes: dict[tuple[str, int], dict[str, dict]]) -> str:
     """Markdown: per policy, over the episodes every policy has, means and paired differences."""
-    policies = sorted({p for rows in episodes.values() for p in rows}, key=lambda p: (not is_fixed_rate(p), p))
+    policies = policy_names(episodes)
     complete = {k: v for k, v in episodes.items() if set(v) == set(policies) and "always" in v}
     lines = [f"{len(complete)} episodes ({', '.join(sorted({s for s, _ in complete}))}; seeds "
              f"{sorted({seed for _, seed in complete})}) where every policy ran.", "",
@@ -83,7 +88,7 @@ def plot(episodes: dict[tuple[str, int], dict[str, dict]], out: Path) -> None:
     import matplotlib.pyplot as plt  # noqa: PLC0415
 
     settings = sorted({s for s, _ in episodes})
-    policies = sorted({p for rows in episodes.values() for p in rows}, key=lambda p: (not is_fixed_rate(p), p))
+    policies = policy_names(episodes)
     fig, axes = plt.subplots(1, len(settings), figsize=(5 * len(settings), 4.2), squeeze=False)
     colours = {p: plt.cm.tab20(i % 20) for i, p in enumerate(policies)}
     for ax, setting in zip(axes[0], settings):
