@@ -29,13 +29,24 @@ def episode_fingerprint(preset: str, seed: int, action_seed: int, **overrides) -
     obs, infos = e.reset(seed=seed)
     rng = np.random.default_rng(action_seed)
 
+    def feed(value) -> None:
+        """Every array's bytes and every other value's JSON, dicts in key order (observations are Dicts)."""
+        if isinstance(value, np.ndarray):
+            digest.update(str(value.dtype).encode() + str(value.shape).encode() + value.tobytes())
+        elif isinstance(value, dict):
+            for key in sorted(value):
+                digest.update(str(key).encode())
+                feed(value[key])
+        elif isinstance(value, (list, tuple)):
+            for item in value:
+                feed(item)
+        else:
+            digest.update(json.dumps(value, sort_keys=True, default=lambda o: o.tolist()).encode())
+
     def absorb(d: dict) -> None:
         for agent in sorted(d):
-            value = d[agent]
-            if isinstance(value, np.ndarray):
-                digest.update(agent.encode() + value.tobytes())
-            else:
-                digest.update(agent.encode() + json.dumps(value, sort_keys=True).encode())
+            digest.update(agent.encode())
+            feed(d[agent])
 
     absorb(obs)
     absorb(infos)

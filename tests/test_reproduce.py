@@ -74,7 +74,7 @@ def test_resume_skips_finished_runs_and_redoes_a_half_written_one(tmp_path):
     specs = table_runs("comm-failure", ["tiny"], [0, 1])
     calls = []
     run_table(specs, "tiny", tmp_path, run_fn=_fake_run(calls), progress=False)
-    assert len(calls) == len(specs) == 2 * 2 * 4
+    assert len(calls) == len(specs) == 2 * 3 * 4  # 2 seeds x (dinerf_global, its stale form, openmulti) x 4 rates
     calls.clear()
     run_table(specs, "tiny", tmp_path, run_fn=_fake_run(calls), progress=False)
     assert calls == []
@@ -147,7 +147,7 @@ def test_tables_only_writes_the_finished_runs_and_makes_none(tmp_path, capsys):
     assert len(calls) == 4  # nothing more was run
     assert [r["method"] for r in written["comm-failure"]] == ["openmulti"] * 4
     said = capsys.readouterr().out
-    assert "4 of 8 runs not made yet" in said and "dinerf_global_tiny_s0_a4_p020_tiny" in said
+    assert "8 of 12 runs not made yet" in said and "dinerf_global_tiny_s0_a4_p020_tiny" in said
     assert json.loads((tmp_path / "comm-failure.json").read_text())["rows"] == written["comm-failure"]
 
 def test_several_scenes_get_a_per_scene_section():
@@ -180,7 +180,7 @@ def test_methods_filter_runs_only_those_and_names_the_tables_methods(tmp_path):
     assert set(written) == {"geometric", "semantic", "transmission"}  # the tables holding either method
     assert sorted({r["method"] for rows in written.values() for r in rows}) == ["pointcloud_sharing", "single"]
     assert len(calls) == 2  # single is in two tables, made once
-    with pytest.raises(ValueError, match="not in table 'comm-failure'.*dinerf_global, openmulti"):
+    with pytest.raises(ValueError, match="not in table 'comm-failure'.*dinerf_global, dinerf_global_stale, openmulti"):
         reproduce("comm-failure", ["tiny"], [0], "tiny", tmp_path, run_fn=_fake_run([]), methods=["single"])
 
 # ---- each culling on a hand-made mesh -------------------------------------------------------------

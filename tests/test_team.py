@@ -121,8 +121,9 @@ def test_channel_drops_by_probability_and_enforces_the_budget():
 
 # ---- eq. 12: the three algorithms ------------------------------------------------------------------
 def _pairs(rows, vectors, peer_deg, own_deg):
-    return ConsistencyPairs(torch.tensor(rows), torch.tensor(vectors, dtype=torch.float32),
-                            torch.tensor(peer_deg), torch.tensor(own_deg))
+    """Pairs with the Metropolis weight 1 / (max(own, peer degree) + 1) of each."""
+    weights = [1.0 / (max(p, o) + 1.0) for p, o in zip(peer_deg, own_deg)]
+    return ConsistencyPairs(torch.tensor(rows), torch.tensor(vectors, dtype=torch.float32), torch.tensor(weights))
 
 
 def test_dinno_and_dsgd_updates_match_hand_computed_values():
@@ -409,7 +410,7 @@ def _paired_distance(team) -> float:
     m = team.members[0]
     dists = []
     for name, bank in m.mapper.banks.items():
-        pairs = m._pairs(name)
+        pairs, _ = m._pairs(name)
         if len(pairs):
             dists.append((bank.params.detach()[pairs.rows] - pairs.vectors).norm(dim=1))
     return float(torch.cat(dists).mean())

@@ -15,12 +15,12 @@ import numpy as np
 import torch
 
 from mapping.field import InstanceFieldBank, LiveRows
-from mapping.team.consistency import (ConsistencyPairs, consensus_penalty, dinno_dual_update, dinno_penalty,
-                                      metropolis_mix)
+from mapping.team.consistency import (ConsistencyPairs, PairKey, consensus_penalty, degree_listing,
+                                      dinno_dual_update, dinno_penalty, metropolis_mix, metropolis_weights)
 from mapping.team.cross_rendering import (instance_render_consistency_loss, peer_render_targets, rays_of_message,
                                          render_consistency_loss)
 from mapping.team.inbox import payload_frame
-from mapping.team.messages import InstancePayload, RayMessage
+from mapping.team.messages import DegreeMessage, InstancePayload, RayMessage
 from mapping.team.report import ConsistencyTerms
 
 
@@ -44,7 +44,7 @@ class Agreement:
         ``reading``); None when nothing is paired."""
         if self.config.consistency.algorithm != "consensus":
             return None
-        pairs = {name: self._pairs(name) for name in self.mapper.banks}
+        pairs = {name: self._pairs(name)[0] for name in self.mapper.banks}
         if not any(len(p) for p in pairs.values()):
             return None
         rho = self.config.consistency.penalty_rho
@@ -57,11 +57,37 @@ class Agreement:
             return total
         return penalty
 
-    def consistency_round(self, ray_messages: Sequence[RayMessage]) -> ConsistencyTerms:
-        """Data loss + parameter consistency (eq. 12) + render consistency (eq. 13) iterations."""
+    def degree_messages(self, round_index: int) -> list[DegreeMessage]:
+        """DSGD: after this round's parameters arrived, one listing per peer I pair instances with (my
+        pairs with it and my degree per instance), so that both ends weigh an edge alike; none for the
+        other algorithms."""
+        if self.config.consistency.algorithm != "dsgd":
+            return []
+        keys = [k for name in self.mapper.banks for k in self._pairs(name, self._fresh_round(round_index))[1]]
+        return [DegreeMessage(self.index, peer, round_index, *(np.asarray(x, np.int64) for x in degree_listing(keys, peer)))
+                for peer in sorted({k.peer for k in keys})]
+
+    def consistency_round(self, ray_messages: Sequence[RayMessage], round_index: int,
+                          listings: Sequence[DegreeMessage] = (), acknowledged: frozenset[int] = frozenset()
+                          ) -> ConsistencyTerms:
+        """Data loss + parameter consistency (eq. 12) + render consistency (eq. 13) iterations.
+
+        Args:
+            ray_messages: the ray messages that arrived this round.
+            round_index: this round (DiNNO and DSGD use only the vectors that arrived in it).
+            listings: DSGD: the peers' ``degree_messages`` that arrived; acknowledged: the peers my own
+                listing reached.
+        """
         c = self.config.consistency
         start = time.perf_counter()
-        pairs = {name: self._pairs(name) for name in self.mapper.banks}
+        fresh = self._fresh_round(round_index)
+        if c.algorithm == "dsgd":
+            self.mixing_weights = {}
+            received = {m.sender: (m.own_ids, m.peer_ids, m.degrees) for m in listings}
+            pairs = {name: self._weighted(*self._pairs(name, fresh), received, acknowledged)
+                     for name in self.mapper.banks}
+        else:
+            pairs = {name: self._pairs(name, fresh)[0] for name in self.mapper.banks}
         anchors = {name: bank.params.detach().clone() for name, bank in self.mapper.banks.items()}
         if c.algorithm == "dinno":
             for name, bank in self.mapper.banks.items():
@@ -119,10 +145,25 @@ class Agreement:
         terms.pairs, terms.seconds = n_pairs, time.perf_counter() - start
         return terms
 
-    def _pairs(self, bank_name: str) -> ConsistencyPairs:
+    def _fresh_round(self, round_index: int) -> int | None:
+        """The round whose vectors DiNNO and DSGD may use (None: any vector held)."""
+        c = self.config.consistency
+        return round_index if c.algorithm in ("dinno", "dsgd") and c.missing_edges == "skip" else None
+
+    def _weighted(self, pairs: ConsistencyPairs, keys: list[PairKey], listings: dict, acknowledged: frozenset[int]
+                  ) -> ConsistencyPairs:
+        """DSGD: the pairs whose edge both ends agreed on, with their Metropolis weights."""
+        values = metropolis_weights(keys, listings, acknowledged)
+        self.mixing_weights.update({key: w for key, w in zip(keys, values) if w > 0})
+        weights = torch.as_tensor(values, dtype=torch.float32, device=pairs.rows.device)
+        used = weights > 0
+        return ConsistencyPairs(pairs.rows[used], pairs.vectors[used], weights[used])
+
+    def _pairs(self, bank_name: str, fresh_round: int | None = None) -> tuple[ConsistencyPairs, list[PairKey]]:
         """(own row, peer vector) of every instance both hold in one frame, one peer vector per own row
-        and peer (the peer's instance with the largest box when several match one of mine)."""
-        rows, vectors, peers, by_row = [], [], [], {}
+        and peer (the peer's instance with the largest box when several match one of mine), and who
+        each pair joins; with ``fresh_round`` only the vectors that arrived in that round."""
+        rows, vectors, keys = [], [], []
         bank = self.mapper.banks[bank_name]
         chosen: dict[tuple[int, int], InstancePayload] = {}
         for peer, table in self.matches.items():
@@ -131,6 +172,8 @@ class Agreement:
                 payload = self.held.get(peer, {}).get(pid)
                 if slot is None or payload is None or not slot.alive or slot.bank != bank_name:
                     continue
+                if fresh_round is not None and self.held_at.get(peer, {}).get(pid) != fresh_round:
+                    continue
                 if not payload_frame(payload).same_as(self.mapper.frame_of(own)):
                     continue
                 key = (peer, own)
@@ -138,17 +181,14 @@ class Agreement:
                 if key not in chosen or size > float(np.prod(chosen[key].bound_hi - chosen[key].bound_lo)):
                     chosen[key] = payload
         for (peer, own), payload in sorted(chosen.items()):
-            row = self.mapper.slots[own].row
-            rows.append(row)
+            rows.append(self.mapper.slots[own].row)
             vectors.append(torch.as_tensor(payload.params.astype(np.float32)))
-            peers.append(self.peer_degrees.get(peer, 1))
-            by_row[row] = by_row.get(row, 0) + 1
+            keys.append(PairKey(peer, own, payload.instance_id))
         dev = bank.device
         if not rows:
-            empty = torch.zeros(0, dtype=torch.long, device=dev)
-            return ConsistencyPairs(empty, torch.zeros(0, bank.param_dim, device=dev), empty, empty)
-        return ConsistencyPairs(torch.as_tensor(rows, device=dev), torch.stack(vectors).to(dev),
-                                torch.as_tensor(peers, device=dev), torch.as_tensor([by_row[r] for r in rows], device=dev))
+            return ConsistencyPairs(torch.zeros(0, dtype=torch.long, device=dev),
+                                    torch.zeros(0, bank.param_dim, device=dev)), keys
+        return ConsistencyPairs(torch.as_tensor(rows, device=dev), torch.stack(vectors).to(dev)), keys
 
     def _own_fields(self) -> tuple[list[LiveRows], list[torch.Tensor]]:
         """My live instances per bank, and the instance id of each of their rows."""

@@ -8,6 +8,7 @@ from dataclasses import dataclass, field
 from mapping.agent_config import MappingConfig
 from mapping.fusion.online import OnlineFusionConfig
 from mapping.team.arrival import ArrivalConfig
+from mapping.team.consistency import MISSING_EDGES
 
 CROSS_RENDERING_FORMS = ("instance", "composite")
 """The two forms of eq. 13 (``ConsistencyConfig.cross_rendering_form``)."""
@@ -27,6 +28,12 @@ class ConsistencyConfig:
     90.6 %, rho 3 91.9 %."""
     dinno_rho: float = 0.3
     """DiNNO's penalty weight (its paper: 0.3-0.5)."""
+    missing_edges: str = "skip"
+    """DiNNO and DSGD with a peer whose vector for an instance did not arrive this round: ``skip`` the
+    edge this round (RAMEN skips the edges its channel dropped) or use the ``last`` vector held (the
+    stale form: DiNNO's duals keep growing from an old difference, DSGD keeps mixing toward it).
+    Consensus always uses the last vector held (MACIM). On a perfect link under ``always``, without
+    changed-only sending, the two differ only on instances a peer stopped sending (e.g. merged away)."""
     iterations: int = 5
     """Consistency iterations per round (data loss + the terms below)."""
     local_consensus: bool = True
@@ -81,6 +88,8 @@ class ConsistencyConfig:
         if self.cross_rendering_form not in CROSS_RENDERING_FORMS:
             raise ValueError(f"unknown cross_rendering_form {self.cross_rendering_form!r}; "
                              f"choose one of {CROSS_RENDERING_FORMS}")
+        if self.missing_edges not in MISSING_EDGES:
+            raise ValueError(f"unknown missing_edges {self.missing_edges!r}; choose one of {MISSING_EDGES}")
         if self.ray_poses not in RAY_POSES:
             raise ValueError(f"unknown ray_poses {self.ray_poses!r}; choose one of {RAY_POSES}")
 
@@ -103,7 +112,8 @@ class ExchangeConfig:
     """Send an instance's cloud again when it has grown this many times since it last went."""
     forward_adopted: bool = False
     """Also send instances this agent only holds from peers (never saw itself): with every link up
-    each peer has them from their owner already, so by default they are not forwarded."""
+    each peer has them from their owner already, so by default they are not forwarded. DiNNO and DSGD
+    always forward them (each agent shares its whole model, so every edge has both ends)."""
     point_clouds: bool = False
     """Point-cloud sharing (Table VI's baseline): a "send parameters" link carries the sender's
     observed points so far (``cloud_voxel_m`` down-sampled) instead; the receiver learns nothing from it."""

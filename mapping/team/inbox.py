@@ -26,12 +26,12 @@ class Inbox:
         """Hold the peer's instances; align the newly described ones (match / merge / adopt); agree on
         frames and grow boxes for matched ones. Returns counts of what happened."""
         peer = message.sender
-        held = self.held.setdefault(peer, {})
+        held, held_at = self.held.setdefault(peer, {}), self.held_at.setdefault(peer, {})
         matches = self.matches.setdefault(peer, {})
         for inst in message.instances:
             held[inst.instance_id] = inst
+            held_at[inst.instance_id] = message.round
         self.held_round[peer] = message.round
-        self.peer_degrees[peer] = message.degree
         counts = AlignmentCounts()
         if self.config.global_map:
             return self._receive_global(message)

@@ -8,7 +8,7 @@ one process per agent can come later. Per round (``Team.round`` calls these in o
 loss, eq. 8-11, plus eq. 12's consensus toward the parameters last received with ``local_consensus``),
 ``parameter_message`` / ``ray_message`` for the peers the plan names (``acknowledge`` books what a
 delivered one gave the peer), ``receive_parameters`` (hold, align on arrival, adopt),
-``consistency_round`` (eq. 12 + eq. 13).
+``degree_messages`` (DSGD only: its pairs and degrees for each peer), ``consistency_round`` (eq. 12 + eq. 13).
 """
 
 from __future__ import annotations
@@ -27,6 +27,7 @@ from mapping.perception.codebook import CodeBook, CodeBookEntry
 from mapping.perception.types import FrameSegmentation
 from mapping.team.agreement import Agreement, PenaltyReading
 from mapping.team.config import TeamConfig
+from mapping.team.consistency import PairKey
 from mapping.team.global_map import as_global_image, global_entry
 from mapping.team.inbox import Inbox
 from mapping.team.messages import InstancePayload
@@ -94,12 +95,13 @@ class TeamMember(Outbox, Inbox, Agreement):
         self.max_frame_read = -1
         self.meaning: dict[int, tuple[str, np.ndarray, float]] = {}  # own id -> a more confident peer's meaning
         self.held: dict[int, dict[int, InstancePayload]] = {}  # peer -> peer id -> last payload
-        self.held_round: dict[int, int] = {}
-        self.peer_degrees: dict[int, int] = {}  # peer -> how many peers it sent to (DSGD)
+        self.held_round: dict[int, int] = {}  # peer -> round its last parameter message arrived
+        self.held_at: dict[int, dict[int, int]] = {}  # peer -> peer id -> round that instance's vector arrived
         self.matches: dict[int, dict[int, int]] = {}  # peer -> peer id -> own id
         self.sent_vectors: dict[int, dict[int, np.ndarray]] = {}
         self.sent_cloud_points: dict[int, dict[int, int]] = {}
         self.duals: dict[str, torch.Tensor] = {}
+        self.mixing_weights: dict[PairKey, float] = {}  # DSGD: the weight W_kj of each edge mixed last round
         self.peer_positions: dict[int, tuple[int, np.ndarray]] = {}  # peer -> (round, (3,) position) from its rays
         self._shadow: dict[int, tuple[int, list, list]] = {}
         self._unacknowledged: dict[int, tuple[dict, dict]] = {}  # receiver -> bookkeeping of the message in flight

@@ -1,6 +1,7 @@
 """What agents send each other, and its real serialised form (bytes are counted as ``len(to_bytes())``).
 
-Two kinds, as the paper's exchange (sec. III-D), and a third for the transmission baseline:
+Two kinds, as the paper's exchange (sec. III-D), a third for the transmission baseline and a fourth
+for DSGD:
 - ``ParameterMessage``: per instance, its network vector, box, frame and code-book entry, and, the
   first time that instance goes to that peer (or after its cloud grew), its down-sampled point cloud
   for the Cross-Agent Instance Alignment.
@@ -11,6 +12,9 @@ Two kinds, as the paper's exchange (sec. III-D), and a third for the transmissio
 - ``PointCloudMessage``: the down-sampled points the sender has observed so far: what point-cloud
   sharing (the paper's Table VI baseline) would send instead of parameters; it trains nothing here,
   it exists so that its bytes are counted the same way as the others'.
+- ``DegreeMessage``: DSGD only, after the parameters arrived: the sender's pairs with the receiver
+  and its degree per instance, so that both ends of an edge use the same Metropolis weight
+  (``mapping.team.consistency``).
 
 Wire format (one function pair for both kinds): ``b"OMMSG"``, a version byte, a uint32 header length,
 a UTF-8 JSON header (scalars, and for each array its name, dtype, shape and offset), then the arrays'
@@ -66,7 +70,7 @@ class InstancePayload:
 @dataclass
 class ParameterMessage:
     """Sender's instances for one receiver in one round; ``degree`` = how many peers the sender sent
-    parameters to this round (DSGD's Metropolis weights need it)."""
+    parameters to this round (informational: DSGD's weights come from ``DegreeMessage``)."""
 
     sender: int
     receiver: int
@@ -102,7 +106,21 @@ class PointCloudMessage:
     kind = "points"
 
 
-Message = ParameterMessage | RayMessage | PointCloudMessage
+@dataclass
+class DegreeMessage:
+    """DSGD's listing for one receiver: per pair of the sender's instance ``own_ids[m]`` with the
+    receiver's ``peer_ids[m]``, the sender's degree for that instance ``degrees[m]`` ((n,) int each)."""
+
+    sender: int
+    receiver: int
+    round: int
+    own_ids: np.ndarray
+    peer_ids: np.ndarray
+    degrees: np.ndarray
+    kind = "degrees"
+
+
+Message = ParameterMessage | RayMessage | PointCloudMessage | DegreeMessage
 
 
 def replay_pixels(message: RayMessage) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -189,11 +207,22 @@ def _checked(arrays: dict[str, np.ndarray], name: str, shape: tuple[int | None, 
     return a
 
 
+def _checked_ids(arrays: dict[str, np.ndarray], name: str) -> np.ndarray:
+    """``arrays[name]`` if it is a (n,) array of non-negative integers."""
+    a = _checked(arrays, name, (None,), floating=False)
+    if a.dtype.kind not in "iu" or np.any(a < 0):
+        raise MessageError(f"array {name}: expected non-negative integers, got {a.dtype}")
+    return a.astype(np.int64)
+
+
 def to_bytes(message: Message) -> bytes:
     """The message's serialised form (what a radio would carry)."""
     base = {"sender": message.sender, "receiver": message.receiver, "round": message.round}
     if isinstance(message, PointCloudMessage):
         return _pack("points", base, {"points": np.asarray(message.points, np.float32)})
+    if isinstance(message, DegreeMessage):
+        return _pack("degrees", base, {name: np.asarray(getattr(message, name), np.int32)
+                                       for name in ("own_ids", "peer_ids", "degrees")})
     if isinstance(message, RayMessage):
         return _pack("rays", {**base, "intrinsics": list(message.intrinsics), "seed": int(message.seed),
                               "rays_per_pose": int(message.rays_per_pose)},
@@ -225,6 +254,13 @@ def from_bytes(data: bytes) -> Message:
                               _int(s, "seed"), _int(s, "rays_per_pose"))
         if kind == "points":
             return PointCloudMessage(*base, _checked(a, "points", (None, 3)))
+        if kind == "degrees":
+            lists = [_checked_ids(a, name) for name in ("own_ids", "peer_ids", "degrees")]
+            if len({len(x) for x in lists}) != 1:
+                raise MessageError(f"arrays own_ids, peer_ids, degrees: lengths {[len(x) for x in lists]} differ")
+            if np.any(lists[2] < 1):
+                raise MessageError("array degrees: every degree must be >= 1")
+            return DegreeMessage(*base, *lists)
         if kind != "params":
             raise MessageError(f"unknown message kind {kind!r}")
         instances = []

@@ -49,8 +49,9 @@ class Outbox:
 
     def shareable_ids(self) -> list[int]:
         """The instances a parameter message carries: its own (with pixels of its own frames), and the
-        adopted ones too with ``forward_adopted``."""
-        forward = self.config.exchange.forward_adopted
+        adopted ones too with ``forward_adopted`` or under DiNNO and DSGD (each agent shares its whole
+        model, as they prescribe: an adopted copy that never travels back is an edge with one end)."""
+        forward = self.config.exchange.forward_adopted or self.config.consistency.algorithm in ("dinno", "dsgd")
         return [iid for iid in self.mapper.live_ids() if forward or self.mapper.keyframes.has_pixels(iid)]
 
     def acknowledge(self, receiver: int, kind: str, delivered: bool, round_index: int) -> None:

@@ -31,7 +31,7 @@ def member_state(m: TeamMember) -> dict:
         "meaning": {int(k): [c, torch.as_tensor(f), float(conf)] for k, (c, f, conf) in m.meaning.items()},
         "held": {int(p): {int(i): _payload_state(x) for i, x in t.items()} for p, t in m.held.items()},
         "held_round": {int(k): int(v) for k, v in m.held_round.items()},
-        "peer_degrees": {int(k): int(v) for k, v in m.peer_degrees.items()},
+        "held_at": {int(p): {int(i): int(r) for i, r in t.items()} for p, t in m.held_at.items()},
         "matches": {int(p): {int(i): int(o) for i, o in t.items()} for p, t in m.matches.items()},
         "sent_vectors": {int(p): {int(i): torch.as_tensor(v) for i, v in t.items()} for p, t in m.sent_vectors.items()},
         "sent_cloud_points": {int(p): {int(i): int(v) for i, v in t.items()} for p, t in m.sent_cloud_points.items()},
@@ -51,7 +51,8 @@ def restore_member(m: TeamMember, s: dict) -> None:
     m.meaning = {int(k): (c, f.numpy(), conf) for k, (c, f, conf) in s["meaning"].items()}
     m.held = {int(p): {int(i): _payload(x) for i, x in t.items()} for p, t in s["held"].items()}
     m.held_round = dict(s["held_round"])
-    m.peer_degrees = dict(s["peer_degrees"])
+    m.held_at = {int(p): {int(i): int(r) for i, r in t.items()} for p, t in s["held_at"].items()} if "held_at" in s \
+        else {p: {i: m.held_round[p] for i in t} for p, t in m.held.items()}  # older checkpoints: per message
     m.matches = {int(p): dict(t) for p, t in s["matches"].items()}
     m.sent_vectors = {int(p): {int(i): np.asarray(v.numpy()) for i, v in t.items()} for p, t in s["sent_vectors"].items()}
     m.sent_cloud_points = {int(p): dict(t) for p, t in s["sent_cloud_points"].items()}

@@ -3,7 +3,8 @@
 One round (DESIGN.md, "the flow of one env step"): every agent reads its next frames, fuses them and
 runs its local iterations (the data loss, and eq. 12 toward what it last received when
 ``ConsistencyConfig.local_consensus``); the channel carries the messages the plan asks for; every receiver holds
-and aligns what arrived and runs its consistency iterations (eq. 12-13). The plan is two (N, N)
+and aligns what arrived (with DSGD, each pair of agents then swaps its pairs and degrees, so both ends of an
+edge use one Metropolis weight) and runs its consistency iterations (eq. 12-13). The plan is two (N, N)
 boolean matrices, ``send_params[i, j]`` (i sends its parameters to j) and ``share_rays[i, j]`` (i
 shares rays of views it has mapped with j), diagonal False: the env's actions and the CLI's scripted policies
 both drive the team through it only.
@@ -27,7 +28,7 @@ from mapping.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
 from mapping.team.channel import DELIVERED, DROPPED, OVER_BUDGET, Channel
 from mapping.team.config import TeamConfig
 from mapping.team.member import AgentStream, TeamMember, Vocabulary
-from mapping.team.messages import ParameterMessage, RayMessage
+from mapping.team.messages import DegreeMessage, ParameterMessage, RayMessage
 from mapping.team.report import (AgentSnapshot, AlignmentCounts, ConsistencyTerms, DeliveryRecord, LossTerms,
                                  RoundReport)
 from mapping.team.state import member_state, restore_member
@@ -159,21 +160,36 @@ class Team:
                             self.members[j].note_rays(d.message)
         exchange_s = time.perf_counter() - start
 
-        # ---- arrival and consistency, each receiver on its own ---------------------------------------
-        def receive_and_agree(member: TeamMember) -> tuple[AlignmentCounts, ConsistencyTerms, float]:
+        # ---- arrival, each receiver on its own --------------------------------------------------------
+        def receive(member: TeamMember) -> tuple[AlignmentCounts, float]:
             t0 = time.perf_counter()
             counts = AlignmentCounts()
             for message in params_in[member.index]:
                 counts.add(member.receive_parameters(message))
-            arrival = time.perf_counter() - t0
-            terms = member.consistency_round(rays_in[member.index])
-            return counts, terms, arrival + terms.seconds
+            return counts, time.perf_counter() - t0
+
+        arrivals = self.each_member(receive)
+        # ---- DSGD only: each end tells the other its pairs and degrees (same weight at both ends) ----
+        listings_in: dict[int, list[DegreeMessage]] = {j: [] for j in range(n)}
+        acknowledged: dict[int, set[int]] = {i: set() for i in range(n)}
+        for member in self.members:
+            for message in member.degree_messages(t):
+                d = self.channel.transmit(message)
+                deliveries.append(DeliveryRecord(message.sender, message.receiver, d.kind, d.status, d.bytes))
+                if d.status == DELIVERED:
+                    listings_in[message.receiver].append(d.message)
+                    acknowledged[message.sender].add(message.receiver)
+
+        # ---- consistency, each receiver on its own ----------------------------------------------------
+        def agree(member: TeamMember) -> ConsistencyTerms:
+            k = member.index
+            return member.consistency_round(rays_in[k], t, listings_in[k], frozenset(acknowledged[k]))
 
         alignment, losses, consistency_s = {}, {}, []
-        for member, (counts, terms, seconds) in zip(self.members, self.each_member(receive_and_agree)):
+        for member, (counts, arrival_s), terms in zip(self.members, arrivals, self.each_member(agree)):
             alignment[member.name] = counts
             losses[member.name] = LossTerms(local[member.index].loss, local[member.index].parameter, terms)
-            consistency_s.append(seconds)
+            consistency_s.append(arrival_s + terms.seconds)
         self.round_index += 1
         statuses = [d.status for d in deliveries]
         sent, received = self.channel.bytes_sent - sent0, self.channel.bytes_received - recv0

@@ -41,7 +41,8 @@ def run(scene: str, agents: int, policy: str, preset: str, seed: int, out: Path,
         checkpoint_every: int = 5, progress: bool = True, max_rounds: int | None = None,
         global_map: bool = False, global_width: int = GLOBAL_WIDTH,
         global_encoding_scale: float = GLOBAL_ENCODING_SCALE, share_point_clouds: bool = False,
-        three_cullings: bool = False, plots: bool = True, workers: int | None = None) -> dict:
+        three_cullings: bool = False, plots: bool = True, workers: int | None = None,
+        missing_edges: str = "skip") -> dict:
     """A team run on the simulated ``scene``; returns the metrics written to ``out/metrics.json``.
 
     Args:
@@ -54,6 +55,8 @@ def run(scene: str, agents: int, policy: str, preset: str, seed: int, out: Path,
         comm_budget_mb: bytes each agent may send over the run (None: unlimited).
         consistency: parameter consistency (eq. 12): consensus, dinno, dsgd or none.
         cross_rendering: Cross Rendering Supervision on shared rays (eq. 13).
+        missing_edges: DiNNO and DSGD with a vector that did not arrive this round: ``skip`` the edge or
+            use the ``last`` one held (``ConsistencyConfig.missing_edges``).
         float16, changed_only: what parameter messages carry (``ExchangeConfig``).
         threads: torch threads (default: all cores).
         checkpoint_every: save the team every this many rounds (an interrupted run resumes from it).
@@ -75,7 +78,8 @@ def run(scene: str, agents: int, policy: str, preset: str, seed: int, out: Path,
     settings = {"scene": scene, "agents": agents, "policy": policy, "preset": preset, "seed": seed,
                 "alignment": alignment, "segmentation_errors": segmentation_errors, "clip_checkpoint": clip_checkpoint,
                 "comm_budget_mb": comm_budget_mb, "consistency": consistency, "cross_rendering": cross_rendering,
-                "float16": float16, "changed_only": changed_only}
+                "float16": float16, "changed_only": changed_only,
+                **({"missing_edges": missing_edges} if consistency in ("dinno", "dsgd") else {})}
     if global_map or share_point_clouds or three_cullings:  # older runs' settings stay as they were
         settings.update({"global_map": global_map, "global_width": global_width,
                          **({"global_encoding_scale": global_encoding_scale} if global_map else {}),
@@ -86,7 +90,7 @@ def run(scene: str, agents: int, policy: str, preset: str, seed: int, out: Path,
                              segmentation_errors)
     mapping, map_info = map_structure(world, chosen, global_map, global_width, global_encoding_scale)
     team = run_team_config(chosen, alignment, consistency, cross_rendering, float16, changed_only, mapping=mapping,
-                           global_map=global_map, share_point_clouds=share_point_clouds)
+                           global_map=global_map, share_point_clouds=share_point_clouds, missing_edges=missing_edges)
     errors = SegmentationErrorConfig() if segmentation_errors else SegmentationErrorConfig.none()
     record = SourceRecord(settings, {"map": map_info}, described={"error_rates": asdict(errors)})
     config = RunConfig(Path(out), team, team_channel(scripted, comm_budget_mb), seed=seed, device=device,
@@ -109,7 +113,7 @@ def run_data(data: str | Path, agents: int, policy: str, preset: str, seed: int,
              clip_checkpoint: str | None = None, comm_budget_mb: float | None = None, consistency: str = "consensus",
              cross_rendering: bool = True, float16: bool = False, changed_only: float | None = None,
              threads: int | None = None, checkpoint_every: int = 5, progress: bool = True,
-             max_rounds: int | None = None, workers: int | None = None) -> dict:
+             max_rounds: int | None = None, workers: int | None = None, missing_edges: str = "skip") -> dict:
     """A team run on a real RGB-D data set split into ``agents`` contiguous sequences; returns the metrics
     written to ``out/metrics.json``.
 
@@ -134,8 +138,10 @@ def run_data(data: str | Path, agents: int, policy: str, preset: str, seed: int,
                             "seed": seed, "alignment": alignment, "frames": frames, "intrinsics": intrinsics,
                             "depth_scale": depth_scale, "gt_mesh": gt_mesh, "clip_checkpoint": clip_checkpoint,
                             "comm_budget_mb": comm_budget_mb, "consistency": consistency,
-                            "cross_rendering": cross_rendering, "float16": float16, "changed_only": changed_only})
-    team = run_team_config(chosen, alignment, consistency, cross_rendering, float16, changed_only)
+                            "cross_rendering": cross_rendering, "float16": float16, "changed_only": changed_only,
+                            **({"missing_edges": missing_edges} if consistency in ("dinno", "dsgd") else {})})
+    team = run_team_config(chosen, alignment, consistency, cross_rendering, float16, changed_only,
+                           missing_edges=missing_edges)
     config = RunConfig(Path(out), team, team_channel(scripted, comm_budget_mb), seed=seed, device=device,
                        workers=workers, threads=threads, checkpoint_every=checkpoint_every, max_rounds=max_rounds,
                        progress=progress, title=f"{inputs.name}: policy {policy}")
@@ -229,10 +235,11 @@ def team_channel(policy, comm_budget_mb: float | None) -> ChannelConfig:
 
 def run_team_config(preset: Preset, alignment: str, consistency: str, cross_rendering: bool, float16: bool,
                     changed_only: float | None, mapping: MappingConfig | None = None, global_map: bool = False,
-                    share_point_clouds: bool = False) -> TeamConfig:
+                    share_point_clouds: bool = False, missing_edges: str = "skip") -> TeamConfig:
     """The team settings of a run from its command-line options (on the preset's ``team_config``)."""
     return preset.team_config(mapping=mapping, alignment=alignment == "paper", global_map=global_map,
-                              consistency={"algorithm": consistency, "cross_rendering": cross_rendering},
+                              consistency={"algorithm": consistency, "cross_rendering": cross_rendering,
+                                           "missing_edges": missing_edges},
                               exchange=ExchangeConfig(float16=float16, changed_only=changed_only,
                                                       point_clouds=share_point_clouds))
 

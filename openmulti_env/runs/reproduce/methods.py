@@ -30,12 +30,16 @@ class Method:
     alignment: str = "paper"
     agents: int | None = None
     """Fixed number of agents (None: the table's)."""
+    missing_edges: str = "skip"
+    """DiNNO and DSGD with a vector that did not arrive this round (``ConsistencyConfig.missing_edges``)."""
 
     def run_options(self) -> dict:
         """The keyword arguments of ``run`` this method sets."""
         options = {"policy": self.policy, "consistency": self.consistency, "cross_rendering": self.cross_rendering,
                    "global_map": self.global_map, "share_point_clouds": self.share_point_clouds,
                    "alignment": self.alignment}
+        if self.consistency in ("dinno", "dsgd"):  # only theirs: the other methods' rows keep their keys
+            options["missing_edges"] = self.missing_edges
         if self.global_map:  # the global network's encoding (a library default) decides its rows too
             options["global_encoding_scale"] = GLOBAL_ENCODING_SCALE
         return options
@@ -53,6 +57,9 @@ METHODS: dict[str, Method] = {m.name: m for m in (
            "loss, no Cross Rendering", consistency="dinno", cross_rendering=False),
     Method("dinerf_global", "Di-NeRF*", "one global network per agent, ADMM consensus (DiNNO's updates), "
            "ground-truth poses", consistency="dinno", cross_rendering=False, global_map=True),
+    Method("dinerf_global_stale", "Di-NeRF*, stale edges", "Di-NeRF* whose ADMM uses the last vector held "
+           "from a peer when this round's did not arrive (Table V's other choice for a missing edge)",
+           consistency="dinno", cross_rendering=False, global_map=True, missing_edges="last"),
     Method("macim_global", "MACIM", "one global network per agent with the consistency loss (eq. 12)",
            consistency="consensus", cross_rendering=False, global_map=True),
     Method("openmulti_no_cross", "w/o Cross Rendering", "OpenMulti without Cross Rendering Supervision (eq. 13)",

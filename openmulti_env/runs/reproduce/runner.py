@@ -62,7 +62,9 @@ def library_defaults(preset: str) -> dict:
     from mapping.pipeline.records import as_record  # noqa: PLC0415
     from openmulti_env.presets import mapping_config  # noqa: PLC0415
 
-    return as_record({"consistency": asdict(ConsistencyConfig()), "exchange": asdict(ExchangeConfig()),
+    consistency = asdict(ConsistencyConfig())
+    consistency.pop("missing_edges")  # a method's option (``Method.run_options``), set by DiNNO's and DSGD's only
+    return as_record({"consistency": consistency, "exchange": asdict(ExchangeConfig()),
                       "mapping": asdict(mapping_config(preset))})
 
 

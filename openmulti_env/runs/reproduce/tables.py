@@ -66,7 +66,7 @@ def table_runs(table: str, scenes: list[str], seeds: list[int], agents: int = 4)
                "multi-vs-single": ("single_agent", "openmulti"),
                "semantic": ("single", "openmulti_no_alignment", "openmulti"),
                "ablation": ("macim_global", "openmulti_global", "openmulti_no_cross", "openmulti"),
-               "comm-failure": ("dinerf_global", "openmulti"),
+               "comm-failure": ("dinerf_global", "dinerf_global_stale", "openmulti"),
                "transmission": ("pointcloud_sharing", "dinerf_global", "macim_global", "openmulti")}[table]
     rates = FAILURE_RATES if table == "comm-failure" else (1.0,)
     return [RunSpec(m, scene, seed, METHODS[m].agents or agents, rate)
