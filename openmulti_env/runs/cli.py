@@ -153,7 +153,7 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
 
     written = reproduce(args.table, args.scenes, args.seeds, args.preset, args.out, agents=args.agents,
                         threads=args.threads, device=args.device, three_cullings=not args.free_space_only,
-                        methods=args.methods, run_missing=not args.tables_only)
+                        methods=args.methods, run_missing=not args.tables_only, ray_address=args.ray)
     for name, rows in written.items():
         if rows:
             print(Path(args.out, f"{name}.md").read_text())
@@ -270,7 +270,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--agents", type=_agents, default=4, help="agents of the team methods (single_agent has 1)")
     p.add_argument("--out", default="runs/reproduce", metavar="DIR",
                    help="folder of the tables, rows and runs (started again, finished runs are reused)")
-    p.add_argument("--threads", type=int, default=1, help="torch threads per run (runs go one at a time)")
+    p.add_argument("--threads", type=int, default=1,
+                   help="torch threads per run (runs go one at a time; with --ray, the CPUs each task asks for)")
+    p.add_argument("--ray", nargs="?", const="local", metavar="ADDRESS",
+                   help="run the grid's missing runs as Ray tasks: alone, on a Ray started on this machine; with "
+                        "an address (ray://HOST:10001, HOST:6379 or auto), on that cluster. Rows land in the same "
+                        "DIR/rows/ (a grid resumes, and can be split between a cluster and a laptop). Needs "
+                        "pip install 'openmulti[ray]'")
     p.add_argument("--device", default="cpu", help="cpu, cuda or auto")
     p.add_argument("--free-space-only", action="store_true",
                    help="score with today's free-space culling only (skip the NICE-SLAM and unculled scores)")

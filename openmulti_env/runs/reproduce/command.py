@@ -19,13 +19,15 @@ from openmulti_env.runs.reproduce.writers import write_table
 def reproduce(table: str, scenes: list[str] | None, seeds: list[int], preset: str, out: str | Path, agents: int = 4,
               threads: int | None = 1, device: str = "cpu", three_cullings: bool = True,
               max_rounds: int | None = None, progress: bool = True, run_fn=None,
-              methods: list[str] | None = None, run_missing: bool = True) -> dict[str, list[dict]]:
+              methods: list[str] | None = None, run_missing: bool = True,
+              ray_address: str | None = None) -> dict[str, list[dict]]:
     """Run ``table`` (one of ``TABLES`` or ``all``) and write ``OUT/T.json``, ``.md`` and ``.png``.
 
     Args:
         methods: run only these of the tables' methods (the trade-off table's: its policies) (e.g. to split one table over two processes
             sharing ``out``: rows are keyed, so each process makes its own and both tables read all).
         run_missing: False writes the tables from the runs already finished and makes none.
+        ray_address: run the missing runs as Ray tasks (``local`` or a cluster's address; ``run_table``).
 
     Returns the rows of each table written. Unknown table, method or scene names raise ValueError
     listing the known ones, before any run starts.
@@ -47,7 +49,8 @@ def reproduce(table: str, scenes: list[str] | None, seeds: list[int], preset: st
     written = {}
     for name in names:
         rows = run_table(specs[name], preset, out, threads=threads, device=device, three_cullings=three_cullings,
-                         max_rounds=max_rounds, progress=progress, run_fn=run_fn, run_missing=run_missing)
+                         max_rounds=max_rounds, progress=progress, run_fn=run_fn, run_missing=run_missing,
+                         ray_address=ray_address)
         made = sum(r.get("run_s") or 0.0 for r in rows)
         notes = (f"Preset `{preset}`, {agents} agents, machine: {platform.machine()} {platform.processor() or ''}"
                  f" ({_cores()} cores), torch threads {threads}; the table's {len(rows)} runs took {made:.0f} s "

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import json
 import time
-from dataclasses import asdict
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Callable
 
@@ -101,10 +101,50 @@ def load_row(path: Path, settings: dict) -> dict | None:
     return data["row"]
 
 
+@dataclass(frozen=True)
+class GridJob:
+    """How every run of a grid is made (what ``make_row`` needs besides the spec); plain data, so that
+    it travels to Ray workers."""
+
+    preset: str
+    out: Path
+    threads: int | None = 1
+    device: str = "cpu"
+    three_cullings: bool = True
+    max_rounds: int | None = None
+    keep_files: bool = False
+    run_fn: Callable[..., dict] | None = None
+
+
+def make_row(spec: RunSpec, job: GridJob) -> dict:
+    """Make one run of the grid and return its table row (the run's folder is ``OUT/runs/<key>``; its
+    bulky files are dropped unless ``keep_files``). Writes no row file: the caller does, on the machine
+    that holds ``OUT/rows``."""
+    run_fn = job.run_fn
+    if run_fn is None:
+        from openmulti_env.runs.run import run as run_fn  # noqa: PLC0415
+    key = spec.key(job.preset)
+    start = time.perf_counter()
+    metrics = run_fn(spec.scene, spec.agents, spec.policy, job.preset, spec.seed, job.out / "runs" / key,
+                     device=job.device, threads=job.threads, progress=False, max_rounds=job.max_rounds,
+                     three_cullings=job.three_cullings, plots=False,
+                     **{k: v for k, v in METHODS[spec.method].run_options().items() if k != "policy"})
+    row = {**row_from_metrics(spec, metrics), "run_s": time.perf_counter() - start, "preset": job.preset}
+    if not job.keep_files:
+        _drop_bulky_files(job.out / "runs" / key)
+    return row
+
+
+def write_row(spec: RunSpec, job: GridJob, row: dict) -> None:
+    """``OUT/rows/<key>.json``, atomically, with the settings that made it (``load_row`` reads it back)."""
+    write_json_atomic(job.out / "rows" / f"{spec.key(job.preset)}.json",
+                      {"settings": run_settings(spec, job.preset, job.three_cullings, job.max_rounds), "row": row})
+
+
 def run_table(specs: list[RunSpec], preset: str, out: Path, threads: int | None = 1, device: str = "cpu",
               three_cullings: bool = True, max_rounds: int | None = None, progress: bool = True,
               run_fn: Callable[..., dict] | None = None, keep_files: bool = False,
-              run_missing: bool = True) -> list[dict]:
+              run_missing: bool = True, ray_address: str | None = None) -> list[dict]:
     """Run (or reuse) every spec; returns their rows in the specs' order.
 
     Args:
@@ -114,9 +154,10 @@ def run_table(specs: list[RunSpec], preset: str, out: Path, threads: int | None 
             once its row is written: a ``fast`` team checkpoint is ~0.3 GB, the meshes ~0.2 GB, and a
             table needs tens of runs; ``metrics.json`` and ``rounds.json`` stay).
         run_fn: the run function (default ``openmulti_env.runs.run.run``; tests pass a stand-in).
+        ray_address: run the missing runs as Ray tasks (``openmulti_env.runs.reproduce.ray_grid``):
+            ``local`` starts Ray on this machine, anything else is a cluster's address; None runs them
+            one at a time here.
     """
-    if run_fn is None:
-        from openmulti_env.runs.run import run as run_fn  # noqa: PLC0415
     check_scenes(sorted({s.scene for s in specs}))
     rows, todo = [], []
     for spec in specs:
@@ -129,23 +170,22 @@ def run_table(specs: list[RunSpec], preset: str, out: Path, threads: int | None 
             print(f"[reproduce] {len(todo)} of {len(specs)} runs not made yet, left out: "
                   + ", ".join(spec.key(preset) for spec in todo))
         return [row for row in rows if row is not None]
+    job = GridJob(preset, out, threads, device, three_cullings, max_rounds, keep_files, run_fn)
+    index = {spec.key(preset): i for i, spec in enumerate(specs)}
+
+    def finished(spec: RunSpec, row: dict) -> None:
+        write_row(spec, job, row)
+        rows[index[spec.key(preset)]] = row
+
+    if ray_address is not None and todo:
+        from openmulti_env.runs.reproduce.ray_grid import run_on_ray  # noqa: PLC0415
+
+        run_on_ray(todo, job, finished, address=ray_address, done_before=len(specs) - len(todo), progress=progress)
+        return rows
     with tqdm(total=len(specs), initial=len(specs) - len(todo), desc="runs", unit="run", disable=not progress) as bar:
-        for i, spec in enumerate(specs):
-            if rows[i] is not None:
-                continue
-            key = spec.key(preset)
-            bar.set_postfix_str(key)
-            start = time.perf_counter()
-            metrics = run_fn(spec.scene, spec.agents, spec.policy, preset, spec.seed, out / "runs" / key,
-                             device=device, threads=threads, progress=False, max_rounds=max_rounds,
-                             three_cullings=three_cullings, plots=False,
-                             **{k: v for k, v in METHODS[spec.method].run_options().items() if k != "policy"})
-            row = {**row_from_metrics(spec, metrics), "run_s": time.perf_counter() - start, "preset": preset}
-            write_json_atomic(out / "rows" / f"{key}.json",
-                              {"settings": run_settings(spec, preset, three_cullings, max_rounds), "row": row})
-            rows[i] = row
-            if not keep_files:
-                _drop_bulky_files(out / "runs" / key)
+        for spec in todo:
+            bar.set_postfix_str(spec.key(preset))
+            finished(spec, make_row(spec, job))
             bar.update(1)
     return rows
 
