@@ -11,6 +11,7 @@ Writes `OUT/bench_ray_grid.json`.
 from __future__ import annotations
 
 import argparse
+import os
 import platform
 import shutil
 import time
@@ -18,10 +19,10 @@ from pathlib import Path
 
 from mapping.pipeline.records import write_json_atomic
 from openmulti_env.runs.reproduce.runner import run_table
-from openmulti_env.runs.reproduce.tables import table_runs
+from openmulti_env.runs.reproduce.tables import RunSpec, table_runs
 
 
-def timed_grid(specs, preset: str, out: Path, ray_address: str | None) -> tuple[float, list[dict]]:
+def timed_grid(specs: list[RunSpec], preset: str, out: Path, ray_address: str | None) -> tuple[float, list[dict]]:
     shutil.rmtree(out, ignore_errors=True)
     start = time.perf_counter()
     rows = run_table(specs, preset, out, threads=1, three_cullings=False, progress=True, ray_address=ray_address)
@@ -49,7 +50,7 @@ def main() -> int:
     same = [strip(a) == strip(b) for a, b in zip(sequential, on_ray)]
     result = {"runs": len(specs), "preset": args.preset, "scene": args.scene, "workers": args.workers,
               "sequential_s": sequential_s, "ray_s": ray_s, "speedup": sequential_s / ray_s, "same_rows": same,
-              "machine": f"{platform.machine()} ({__import__('os').cpu_count()} cores)"}
+              "machine": f"{platform.machine()} ({os.cpu_count()} cores)"}
     write_json_atomic(out / "bench_ray_grid.json", result)
     print(f"| runs | sequential [s] | Ray, {args.workers} workers [s] | speed-up | same rows |")
     print("|---|---|---|---|---|")

@@ -135,6 +135,19 @@ def test_dsgd_rounds_mix_with_the_same_weight_at_both_ends_of_every_edge(tiny_wo
     assert listings > 0 and mixed_rounds > 0 and lossy_rounds > 0  # listings travelled, some rounds mixed, some lost
 
 
+def test_dsgd_sends_listings_only_where_the_plan_sent_parameters(tiny_world):
+    team = _team(tiny_world, ConsistencyConfig(algorithm="dsgd", iterations=1, cross_rendering=False, missing_edges="last"))
+    team.round(RoundPlan.always(2))
+    first = team.round(RoundPlan.always(2))
+    assert [d.kind for d in first.deliveries].count("degrees") == 2  # both ends listed their pairs
+    quiet = team.round(RoundPlan.never(2))  # the stale form still holds pairs, but nothing was sent
+    assert quiet.deliveries == [] and all(not m.mixing_weights for m in team.members)
+    one_way = RoundPlan(np.array([[False, True], [False, False]]), np.zeros((2, 2), bool))
+    report = team.round(one_way)  # 0 -> 1 only: agent 0 lists to 1, agent 1's parameters never reached 0
+    assert [(d.sender, d.kind) for d in report.deliveries] == [(0, "params"), (0, "degrees")]
+    assert all(not m.mixing_weights for m in team.members)  # an edge with one end is not mixed
+
+
 def test_dinno_skips_an_edge_whose_vector_did_not_arrive_this_round(tiny_world):
     never = RoundPlan.never(2)
     for missing in ("skip", "last"):

@@ -58,14 +58,17 @@ class Agreement:
         return penalty
 
     def degree_messages(self, round_index: int) -> list[DegreeMessage]:
-        """DSGD: after this round's parameters arrived, one listing per peer I pair instances with (my
-        pairs with it and my degree per instance), so that both ends weigh an edge alike; none for the
-        other algorithms."""
+        """DSGD: after this round's parameters arrived, one listing for each peer I pair instances with
+        and whose copy of my parameters is this round's (the plan sent them and the link acknowledged
+        them: otherwise the peer cannot use the edge, and the plan asked for no message): my pairs with
+        it and my degree per instance, so that both ends weigh an edge alike. None for the other
+        algorithms."""
         if self.config.consistency.algorithm != "dsgd":
             return []
         keys = [k for name in self.mapper.banks for k in self._pairs(name, self._fresh_round(round_index))[1]]
+        reached = {peer for peer, r in self.delivered_round["params"].items() if r == round_index}
         return [DegreeMessage(self.index, peer, round_index, *(np.asarray(x, np.int64) for x in degree_listing(keys, peer)))
-                for peer in sorted({k.peer for k in keys})]
+                for peer in sorted({k.peer for k in keys} & reached)]
 
     def consistency_round(self, ray_messages: Sequence[RayMessage], round_index: int,
                           listings: Sequence[DegreeMessage] = (), acknowledged: frozenset[int] = frozenset()
@@ -83,7 +86,8 @@ class Agreement:
         fresh = self._fresh_round(round_index)
         if c.algorithm == "dsgd":
             self.mixing_weights = {}
-            received = {m.sender: (m.own_ids, m.peer_ids, m.degrees) for m in listings}
+            received = {m.sender: (m.own_ids, m.peer_ids, m.degrees) for m in listings
+                        if m.receiver == self.index and m.round == round_index}  # this round's, for me
             pairs = {name: self._weighted(*self._pairs(name, fresh), received, acknowledged)
                      for name in self.mapper.banks}
         else:

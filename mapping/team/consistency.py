@@ -18,7 +18,9 @@ ids, the same frame: ``mapping.instances.InstanceFrame``). A *pair* is (own row,
   where both ends listed it and both listings arrived (``metropolis_weights``; the sender learns its
   listing arrived from the link's acknowledgement). The degrees are those listed, counted before
   the listings crossed, so a weight is known to both ends and every row of W still sums to 1
-  (W_kk = 1 - sum_j W_kj >= 1 / (deg_k + 1)).
+  (W_kk = 1 - sum_j W_kj >= 1 / (deg_k + 1)). W is doubly stochastic over the vectors as they were
+  sent; an agent that refits a row's frame or merges instances when parameters arrive mixes its
+  row as it is after that, so the team's average is kept only up to those changes.
 - ``none``: nothing (each agent optimises its data loss only).
 
 DiNNO and DSGD act only on vectors that arrived this round (``ConsistencyConfig.missing_edges``:

@@ -16,6 +16,7 @@ import numpy as np
 
 from mapping.perception.image_encoder import ImageEncoderError
 from mapping.perception.text_encoder import TextEncoderError
+from mapping.team.consistency import MISSING_EDGES
 from policies.scripted import parse_policy
 
 RUN_PRESETS = ("tiny", "demo", "fast", "full", "rl_tiny", "rl_small", "rl")  # openmulti_env.presets.PRESET_NAMES (a test checks)
@@ -104,8 +105,9 @@ def cmd_run(args: argparse.Namespace) -> int:
     out = Path(args.out)
     team_options = dict(device=args.device, alignment=args.alignment, clip_checkpoint=args.clip_checkpoint,
                         comm_budget_mb=args.comm_budget_mb, consistency=args.consistency,
-                        missing_edges=args.missing_edges, cross_rendering=args.cross_rendering, float16=args.float16, changed_only=args.changed_only,
-                        threads=args.threads, workers=args.workers)
+                        missing_edges=args.missing_edges, cross_rendering=args.cross_rendering,
+                        float16=args.float16, changed_only=args.changed_only, threads=args.threads,
+                        workers=args.workers)
     what = f"scene {args.scene}" if args.data is None else f"data {args.data}"
     print(f"[openmulti] {what}, {args.agents} agents, preset {args.preset}, seed {args.seed}, "
           f"policy {policy}, alignment {args.alignment}, consistency {args.consistency}"
@@ -217,7 +219,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="align arrived instances (paper, sec. III-C) or adopt each as a new one (none)")
     p.add_argument("--consistency", choices=("consensus", "dinno", "dsgd", "none"), default="consensus",
                    help="parameter consistency, eq. 12 (consensus = MACIM's)")
-    p.add_argument("--missing-edges", choices=("skip", "last"), default="skip",
+    p.add_argument("--missing-edges", choices=MISSING_EDGES, default="skip",
                    help="DiNNO and DSGD with a peer whose vector did not arrive this round: skip the edge (default) "
                         "or use the last vector held (the stale form)")
     p.add_argument("--no-cross-rendering", dest="cross_rendering", action="store_false",

@@ -46,31 +46,42 @@ def run_on_ray(specs: list[RunSpec], job: GridJob, finished: Callable[[RunSpec, 
     except ImportError:
         raise ImportError("--ray needs Ray: pip install 'openmulti[ray]'") from None
     started_here = not ray.is_initialized()
-    if started_here:
-        ray.init(address=None if address == "local" else address, include_dashboard=False, log_to_driver=False,
-                 configure_logging=False)
-    make = ray.remote(num_cpus=max(job.threads or 1, 1), max_retries=MAX_RETRIES, retry_exceptions=False)(make_row)
-    pending = {make.remote(spec, job): spec for spec in specs}
-    failures: list[str] = []
-    total = done_before + len(specs)
+    if started_here:  # "local" starts a Ray here even when RAY_ADDRESS names a cluster
+        ray.init(address=address, include_dashboard=False, log_to_driver=False, configure_logging=False)
     try:
-        with tqdm(total=total, initial=done_before, desc="runs (ray)", unit="run", disable=not progress) as bar:
-            while pending:
-                ready, _ = ray.wait(list(pending), num_returns=1)
-                spec = pending.pop(ready[0])
-                try:
-                    row = ray.get(ready[0])
-                except (ray.exceptions.RayTaskError, ray.exceptions.WorkerCrashedError) as exc:
-                    cause = getattr(exc, "cause", None) or exc  # the run's own exception, not Ray's wrapper
-                    failures.append(f"{spec.key(job.preset)}: {type(cause).__name__}: {cause}")
-                    continue
-                finished(spec, row)
-                bar.set_postfix_str(spec.key(job.preset))
-                bar.update(1)
-    except KeyboardInterrupt:
-        for ref in pending:
-            ray.cancel(ref, force=True)
-        raise
+        cpus = max(job.threads or 1, 1)  # threads=None: 1 CPU asked, as a run's torch threads default to
+        largest = max((n["Resources"].get("CPU", 0) for n in ray.nodes() if n.get("Alive")), default=0)
+        if cpus > largest:
+            raise ValueError(f"each run asks for {cpus} CPUs (--threads) but the largest Ray node has {largest:g}: "
+                             "no task could ever start")
+        make = ray.remote(num_cpus=cpus, max_retries=MAX_RETRIES, retry_exceptions=False)(make_row)
+        pending = {make.remote(spec, job): spec for spec in specs}
+        failures: list[str] = []
+
+        def collect(ref) -> None:
+            spec = pending.pop(ref)
+            try:
+                finished(spec, ray.get(ref))
+            except ray.exceptions.RayError as exc:  # the run raised, its worker died too often, out of memory...
+                cause = getattr(exc, "cause", None) or exc  # the run's own exception, not Ray's wrapper
+                failures.append(f"{spec.key(job.preset)}: {type(cause).__name__}: {cause}")
+
+        try:
+            with tqdm(total=done_before + len(specs), initial=done_before, desc="runs (ray)", unit="run",
+                      disable=not progress) as bar:
+                while pending:
+                    ready, _ = ray.wait(list(pending), num_returns=1)
+                    key = pending[ready[0]].key(job.preset)
+                    collect(ready[0])
+                    bar.set_postfix_str(key)
+                    bar.update(1)
+        except BaseException:  # interrupted: keep what already came back, stop the rest
+            done, _ = ray.wait(list(pending), num_returns=len(pending), timeout=0) if pending else ([], [])
+            for ref in done:
+                collect(ref)
+            for ref in pending:
+                ray.cancel(ref, force=True)
+            raise
     finally:
         if started_here:
             ray.shutdown()
