@@ -168,25 +168,33 @@ class Team:
                 counts.add(member.receive_parameters(message))
             return counts, time.perf_counter() - t0
 
-        arrivals = self.each_member(receive)
         # ---- DSGD only: each end tells the other its pairs and degrees (same weight at both ends) ----
         listings_in: dict[int, list[DegreeMessage]] = {j: [] for j in range(n)}
         acknowledged: dict[int, set[int]] = {i: set() for i in range(n)}
-        for member in self.members:
-            for message in member.degree_messages(t):
-                d = self.channel.transmit(message)
-                deliveries.append(DeliveryRecord(message.sender, message.receiver, d.kind, d.status, d.bytes))
-                if d.status == DELIVERED:
-                    listings_in[message.receiver].append(d.message)
-                    acknowledged[message.sender].add(message.receiver)
+
+        def swap_listings() -> None:
+            for member in self.members:
+                for message in member.degree_messages(t):
+                    d = self.channel.transmit(message)
+                    deliveries.append(DeliveryRecord(message.sender, message.receiver, d.kind, d.status, d.bytes))
+                    if d.status == DELIVERED:
+                        listings_in[message.receiver].append(d.message)
+                        acknowledged[message.sender].add(message.receiver)
 
         # ---- consistency, each receiver on its own ----------------------------------------------------
         def agree(member: TeamMember) -> ConsistencyTerms:
             k = member.index
             return member.consistency_round(rays_in[k], t, listings_in[k], frozenset(acknowledged[k]))
 
+        if self.config.consistency.algorithm == "dsgd":  # the listings cross between arrival and mixing
+            arrivals = self.each_member(receive)
+            swap_listings()
+            agreed = self.each_member(agree)
+        else:  # arrival and consistency in one pass per member: the order every other figure was made in
+            both = self.each_member(lambda m: (receive(m), agree(m)))
+            arrivals, agreed = [b[0] for b in both], [b[1] for b in both]
         alignment, losses, consistency_s = {}, {}, []
-        for member, (counts, arrival_s), terms in zip(self.members, arrivals, self.each_member(agree)):
+        for member, (counts, arrival_s), terms in zip(self.members, arrivals, agreed):
             alignment[member.name] = counts
             losses[member.name] = LossTerms(local[member.index].loss, local[member.index].parameter, terms)
             consistency_s.append(arrival_s + terms.seconds)
