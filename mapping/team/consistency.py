@@ -30,6 +30,7 @@ stale form, for comparison); consensus always pulls toward the last vector held,
 
 from __future__ import annotations
 
+from collections import Counter
 from dataclasses import dataclass
 from typing import Mapping, Sequence
 
@@ -63,12 +64,15 @@ class PairKey:
     peer_id: int
 
 
+def own_degrees(keys: Sequence[PairKey]) -> dict[int, int]:
+    """My degree per instance: how many peers I pair it with."""
+    return dict(Counter(key.own_id for key in keys))
+
+
 def degree_listing(keys: Sequence[PairKey], peer: int) -> tuple[list[int], list[int], list[int]]:
     """What I tell ``peer`` after an exchange (a ``DegreeMessage``'s arrays): for each of my pairs with
     it, my instance id, its instance id, and my degree for that instance (how many peers I pair it with)."""
-    degree: dict[int, int] = {}
-    for key in keys:
-        degree[key.own_id] = degree.get(key.own_id, 0) + 1
+    degree = own_degrees(keys)
     mine = [k for k in keys if k.peer == peer]
     return [k.own_id for k in mine], [k.peer_id for k in mine], [degree[k.own_id] for k in mine]
 
@@ -87,9 +91,7 @@ def metropolis_weights(keys: Sequence[PairKey], listings: Mapping[int, tuple[Seq
     An edge is used when both ends listed it and both listings arrived: then both ends hold the same two
     degrees and compute the same weight 1 / (max(deg_k, deg_j) + 1).
     """
-    degree: dict[int, int] = {}
-    for key in keys:
-        degree[key.own_id] = degree.get(key.own_id, 0) + 1
+    degree = own_degrees(keys)
     theirs = {peer: {(int(p), int(o)): int(d) for p, o, d in zip(*listing)} for peer, listing in listings.items()}
     weights = []
     for key in keys:
