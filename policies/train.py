@@ -56,6 +56,18 @@ def same_run(old: dict, new: dict) -> bool:
     return core(old) == core(new)
 
 
+def claim_run_folder(out: Path, settings: dict) -> dict:
+    """Make ``out`` the folder of a run with ``settings`` (written to ``settings.json``); ValueError when it
+    holds a run with other settings (a resume must keep them, only its length may grow)."""
+    out.mkdir(parents=True, exist_ok=True)
+    settings_path = out / "settings.json"
+    if settings_path.exists() and not same_run(json.loads(settings_path.read_text()), settings):
+        raise ValueError(f"{out} holds a training run with other settings ({settings_path}); resume it with the same "
+                         "settings (--env-steps may grow) or use another --out")
+    settings_path.write_text(json.dumps(settings, indent=2) + "\n")
+    return settings
+
+
 def features_extractor_class():
     """SB3's extractor around ``CommFeatures`` (SB3 imported only when training)."""
     from stable_baselines3.common.torch_layers import BaseFeaturesExtractor  # noqa: PLC0415
@@ -87,17 +99,22 @@ class EpisodeLog:
                      for r in self.rows]
         self.returns: np.ndarray | None = None
 
+    def add(self, env_steps: int, worker: int, episode_return: float, completion: float, mb: float) -> None:
+        """One finished episode (the form a trainer that sees whole episodes, e.g. RLlib's, logs)."""
+        self.rows.append({"env_steps": int(env_steps), "worker": int(worker), "return": float(episode_return),
+                          "completion": float(completion), "mb": float(mb)})
+
     def step(self, rewards: np.ndarray, dones: np.ndarray, infos: list[dict], env_steps: int) -> None:
+        """One step of SB3's vector env (every agent of every worker an entry)."""
         if self.returns is None:
             self.returns = np.zeros(len(rewards))
         self.returns += rewards
         for w in range(len(rewards) // self.n):
             agents = slice(w * self.n, (w + 1) * self.n)
             if np.all(dones[agents]):
-                team = infos[agents]
-                self.rows.append({"env_steps": env_steps, "worker": w, "return": float(self.returns[agents].mean()),
-                                  "completion": float(team[0].get("episode_completion", np.nan)),
-                                  "mb": float(team[0].get("episode_mb", np.nan))})
+                first = infos[agents][0]
+                self.add(env_steps, w, self.returns[agents].mean(), first.get("episode_completion", np.nan),
+                         first.get("episode_mb", np.nan))
                 self.returns[agents] = 0.0
 
     def rolling_return(self, window: int) -> float:
@@ -162,13 +179,7 @@ def train(env_factory: Callable[[int], object], config: TrainConfig, out: str | 
     from policies.sb3_vec import sb3_vec_env_from_factory  # noqa: PLC0415
 
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    settings = {"train": asdict(config), **training_record}
-    settings_path = out / "settings.json"
-    if settings_path.exists() and not same_run(json.loads(settings_path.read_text()), settings):
-        raise ValueError(f"{out} holds a training run with other settings ({settings_path}); resume it with the same "
-                         "settings (--env-steps may grow) or use another --out")
-    settings_path.write_text(json.dumps(settings, indent=2) + "\n")
+    settings = claim_run_folder(out, {"train": asdict(config), **training_record})
 
     # ---- the vector env: every agent of every worker's env one entry, one shared policy -------------------
     vec, num_agents = sb3_vec_env_from_factory(env_factory, config.workers, config.seed)

@@ -294,7 +294,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--clear", action="store_true", help="delete every cached world")
     p.set_defaults(func=cmd_cache)
 
-    p = sub.add_parser("train", help="learn a shared communication policy with PPO (SB3) on the env",
+    p = sub.add_parser("train", help="learn a shared communication policy with PPO (SB3, or RLlib on Ray) on the env",
                        formatter_class=_RawDefaults, description=TRAIN_HELP)
     p.add_argument("--out", default="runs/train", help="folder of the run: checkpoint (resumed), log.csv, "
                    "learning_curve.png, best.json/.safetensors and latest.json/.safetensors")
@@ -304,7 +304,13 @@ def build_parser() -> argparse.ArgumentParser:
                    "room0, office0 and room2 are held out for the trade-off table)")
     p.add_argument("--episodes-per-world", type=int, default=2, help="episodes before a worker moves to its next world")
     p.add_argument("--env-steps", type=int, default=20000, help="env steps (team rounds) over all workers")
-    p.add_argument("--workers", type=int, default=2, help="worker processes, each stepping its own env")
+    p.add_argument("--workers", type=int, default=2, help="worker processes, each stepping its own env (RLlib: env "
+                   "runners)")
+    p.add_argument("--backend", choices=("sb3", "rllib"), default="sb3",
+                   help="sb3: Stable-Baselines3 PPO in worker processes here; rllib: RLlib's multi-agent PPO, its env "
+                        "runners on a local Ray or on --ray ADDRESS (pip install 'openmulti[ray]')")
+    p.add_argument("--ray", metavar="ADDRESS", help="with --backend rllib: the Ray cluster's address (ray://HOST:10001, "
+                   "HOST:6379 or auto; default: a Ray started on this machine)")
     p.add_argument("--reward", choices=("team", "individual"), default="team")
     p.add_argument("--comm-cost-per-mb", type=float, default=0.0025, help="reward cost per megabyte sent (the team's "
                    "MB over the team size)")
@@ -329,7 +335,7 @@ def cmd_train(args: argparse.Namespace) -> int:
 
 
 TRAIN_HELP = """Learn one communication policy shared by every agent (PPO from Stable-Baselines3, parameter
-sharing through SuperSuit) on a distribution of worlds, with the reward's cost per MB sent. The run is
+sharing through SuperSuit; or RLlib's multi-agent PPO with --backend rllib) on a distribution of worlds, with the reward's cost per MB sent. The run is
 resumable (the same --out continues it) and writes the best policy as a .json + .safetensors pair that
 `openmulti run --policy FILE` and `policies.make_policy(FILE, N)` load.
 
@@ -337,8 +343,10 @@ On a laptop (2 cores): a smoke run in minutes,
   openmulti train --preset rl_tiny --agents 2 --env-steps 256 --workers 1 --out runs/train_smoke
 and the shipped policy's run (about an hour; policies/trained/README.md records it),
   openmulti train --preset rl_small --env-steps 4096 --workers 2 --comm-cost-per-mb 0.01 --out runs/train_rl_small
-On a cluster: more --workers (one process each; more cores, more env steps per hour); the RLlib backend
-on Ray is the Ray issue's work and is not in this version."""
+On a cluster: RLlib's PPO with one env runner per core (the same settings, run folder and policy files),
+  openmulti train --backend rllib --ray auto --workers 32 --env-steps 200000 --out runs/train_cluster
+(started on the cluster's head node, or `ray job submit --working-dir . -- openmulti train ...`;
+docs/ray.md). --backend rllib alone runs its env runners on a Ray started on this machine."""
 
 
 def main(argv: list[str] | None = None) -> int:

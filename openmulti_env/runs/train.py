@@ -113,12 +113,17 @@ def train_command(args) -> int:
     """``openmulti train``: build the env factory and the record, train, say where the policy is."""
     from policies.train import TrainConfig, train  # noqa: PLC0415
 
-    for module in ("stable_baselines3", "supersuit"):
+    backend = getattr(args, "backend", "sb3")
+    if getattr(args, "ray", None) and backend != "rllib":
+        raise ValueError("--ray trains on a Ray cluster with RLlib: add --backend rllib")
+    needs = {"sb3": (("stable_baselines3", "supersuit"), "openmulti[train]"), "rllib": (("ray.rllib",), "openmulti[ray]")}
+    modules, extra = needs[backend]
+    for module in modules:
         try:
             __import__(module)
         except ImportError:
-            raise ValueError(f"openmulti train needs {module}: pip install 'openmulti[train]' (make setup installs "
-                             "it)") from None
+            raise ValueError(f"openmulti train --backend {backend} needs {module}: pip install '{extra}' (make setup "
+                             "installs it)") from None
 
     scenes = tuple(args.scenes) if args.scenes else DEFAULT_TRAIN_SCENES
     check_training_scenes(scenes)
@@ -131,7 +136,12 @@ def train_command(args) -> int:
                          seed=args.seed, chunk_env_steps=args.chunk_env_steps)
     record = {"command": "openmulti train " + " ".join(shlex.quote(a) for a in sys.argv[2:]), "scenes": list(scenes),
               "env": env_kwargs, "title": f"{args.preset}, {args.agents} agents, cost {args.comm_cost_per_mb}/MB"}
-    best = train(factory, config, args.out, record, progress=True)
+    if backend == "rllib":
+        from policies.train_rllib import train_rllib  # noqa: PLC0415
+
+        best = train_rllib(factory, config, args.out, record, address=args.ray, progress=True)
+    else:
+        best = train(factory, config, args.out, record, progress=True)
     print(f"[openmulti] best policy: {best} (run it: openmulti run --policy {best}); learning curve: "
           f"{args.out}/learning_curve.png, log: {args.out}/log.csv")
     return 0

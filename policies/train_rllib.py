@@ -1,0 +1,189 @@
+"""Train the shared communication policy with RLlib's multi-agent PPO, on this machine or a Ray cluster.
+
+The same run as ``policies.train`` (SB3), in RLlib's terms: one module ``shared`` that every agent maps to
+(parameter sharing: the agents are identical robots), ``workers`` env runners each stepping its own env,
+PPO updates on the learner in this process. Same settings (``TrainConfig``), same run folder (resumable
+checkpoint, ``log.csv``, ``learning_curve.png``, ``latest`` / ``best`` policy files the CLI loads), so the
+two backends compare row for row. Why a second backend: RLlib scales the env runners over a cluster
+(``address``), which an env at about one step per second needs.
+
+Read top to bottom: settings -> Ray -> the env registered for the runners -> PPO config with
+``CommRLModule`` -> fresh or restored algorithm -> train iterations, each logging its finished episodes,
+checkpointing every ``chunk_env_steps`` and exporting the policy. ``env_factory(index)`` makes runner
+``index``'s ParallelEnv; this module imports no env.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import shutil
+from dataclasses import asdict
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from policies.train import EpisodeLog, TrainConfig, claim_run_folder
+
+ENV_NAME = "openmulti_comm"
+MODULE = "shared"
+EPISODES_KEY = "openmulti_episodes"
+"""The env runners' metric holding one (runner, return, completion, MB) item per finished episode."""
+
+
+def _episode_rows_callback():
+    """An RLlib callback class logging each finished episode's mean agent return and the team's final
+    completion and MB (from the infos' ``episode_completion`` / ``episode_mb``; NaN when absent)."""
+    from ray.rllib.callbacks.callbacks import RLlibCallback  # noqa: PLC0415
+
+    class EpisodeRows(RLlibCallback):
+        def on_episode_end(self, *, episode, env_runner=None, metrics_logger=None, **kwargs) -> None:
+            infos = episode.get_infos(-1)
+            first = next(iter(infos.values()), {})
+            agents = max(len(episode.agent_ids), 1)
+            metrics_logger.log_value(EPISODES_KEY, (int(getattr(env_runner, "worker_index", 0) or 0),
+                                                    float(episode.get_return()) / agents,
+                                                    float(first.get("episode_completion", np.nan)),
+                                                    float(first.get("episode_mb", np.nan))), reduce="item_series")
+
+    return EpisodeRows
+
+
+def _env_creator(env_factory: Callable[[int], object]):
+    """RLlib's env creator: runner k (1-based; 0 is the local runner) gets ``env_factory(k - 1)``."""
+    from ray.rllib.env.wrappers.pettingzoo_env import ParallelPettingZooEnv  # noqa: PLC0415
+
+    def create(context) -> ParallelPettingZooEnv:
+        return ParallelPettingZooEnv(env_factory(max(int(getattr(context, "worker_index", 0)) - 1, 0)))
+
+    return create
+
+
+def _save_checkpoint(algo, path: Path) -> None:
+    """``algo.save_to_path`` into a fresh folder, then swapped in: a kill leaves the old or the new one."""
+    tmp, old = path.with_name(path.name + ".tmp"), path.with_name(path.name + ".old")
+    shutil.rmtree(tmp, ignore_errors=True)
+    algo.save_to_path(str(tmp.resolve()))
+    if path.exists():
+        os.replace(path, old)
+    os.replace(tmp, path)
+    shutil.rmtree(old, ignore_errors=True)
+
+
+def train_rllib(env_factory: Callable[[int], object], config: TrainConfig, out: str | Path, training_record: dict,
+                address: str | None = None, progress: bool = True) -> Path:
+    """Train (or resume) in ``out`` with RLlib PPO; returns the path of the best policy file.
+
+    Args:
+        address: None or ``local``: a Ray started on this machine (or the one this process already joined);
+            else a cluster's address (``ray://host:10001``, ``host:6379``, ``auto``).
+    """
+    try:
+        import ray  # noqa: PLC0415
+        from ray.rllib.algorithms.ppo import PPOConfig  # noqa: PLC0415
+        from ray.rllib.core.rl_module.multi_rl_module import MultiRLModuleSpec  # noqa: PLC0415
+        from ray.rllib.core.rl_module.rl_module import RLModuleSpec  # noqa: PLC0415
+        from ray.rllib.utils.metrics import ENV_RUNNER_RESULTS, NUM_ENV_STEPS_SAMPLED_LIFETIME  # noqa: PLC0415
+        from ray.tune.registry import register_env  # noqa: PLC0415
+    except ImportError:
+        raise ImportError("--backend rllib needs RLlib: pip install 'openmulti[ray]'") from None
+    from tqdm import tqdm  # noqa: PLC0415
+
+    from policies.files import save_policy  # noqa: PLC0415
+    from policies.network import NetworkConfig  # noqa: PLC0415
+    from policies.observation import MAP_CHANNELS  # noqa: PLC0415
+    from policies.rllib_module import CommRLModule, export_module  # noqa: PLC0415
+
+    if config.workers < 1:
+        raise ValueError(f"the RLlib backend needs at least one env runner (--workers), got {config.workers}")
+    out = Path(out)
+    settings = claim_run_folder(out, {"train": asdict(config), "backend": "rllib", **training_record})
+
+    # ---- the policy's shapes, from one env --------------------------------------------------------------
+    probe = env_factory(0)
+    agent = probe.possible_agents[0]
+    num_agents = len(probe.possible_agents)
+    network_config = NetworkConfig(map_channels=len(MAP_CHANNELS),
+                                   comm_size=int(probe.observation_space(agent)["comm"].shape[0]),
+                                   actions=int(probe.action_space(agent).n)).as_dict()
+    probe.close()
+    checkpoint = out / "checkpoint"
+    log = EpisodeLog(out / "log.csv", num_agents)
+    resumed_at = int(log.rows[-1]["env_steps"]) if checkpoint.exists() and log.rows else 0
+
+    # ---- Ray: here or on a cluster ------------------------------------------------------------------------
+    started_here = not ray.is_initialized()
+    if started_here:
+        ray.init(address=None if address in (None, "local") else address, include_dashboard=False,
+                 log_to_driver=False, configure_logging=False)
+    try:
+        register_env(ENV_NAME, _env_creator(env_factory))
+        # ---- PPO: every agent maps to one shared module ----------------------------------------------------
+        ppo = (PPOConfig()
+               .environment(ENV_NAME, disable_env_checking=True)
+               .framework("torch")
+               .env_runners(num_env_runners=config.workers, num_envs_per_env_runner=1,
+                            rollout_fragment_length=config.n_steps, sample_timeout_s=3600.0,
+                            num_cpus_per_env_runner=1)
+               .learners(num_learners=0)
+               .multi_agent(policies={MODULE}, policy_mapping_fn=lambda agent_id, episode, **kw: MODULE)
+               .rl_module(rl_module_spec=MultiRLModuleSpec(rl_module_specs={
+                   MODULE: RLModuleSpec(module_class=CommRLModule, model_config=network_config)}))
+               .training(train_batch_size_per_learner=config.n_steps * config.workers,
+                         minibatch_size=config.batch_size, num_epochs=config.n_epochs, lr=config.learning_rate,
+                         gamma=config.gamma, lambda_=config.gae_lambda, entropy_coeff=config.ent_coef,
+                         clip_param=config.clip_range)
+               .callbacks(_episode_rows_callback())
+               .debugging(seed=config.seed + resumed_at))  # a resumed run draws new episodes, not the first ones
+        algo = ppo.build_algo()
+
+        # ---- fresh, or from the last checkpoint ------------------------------------------------------------
+        env_steps = 0
+        if checkpoint.exists():
+            algo.restore_from_path(str(checkpoint.resolve()))
+            env_steps = max(resumed_at, _sampled(algo, ENV_RUNNER_RESULTS, NUM_ENV_STEPS_SAMPLED_LIFETIME))
+            print(f"[openmulti] resumed RLlib training at {env_steps} env steps from {checkpoint}")
+
+        # ---- train iterations: log, checkpoint and export every chunk ---------------------------------------
+        best = log.rolling_return(config.rolling) if (out / "best.json").exists() else -np.inf
+        next_chunk = (env_steps // config.chunk_env_steps + 1) * config.chunk_env_steps
+        with tqdm(total=config.total_env_steps, initial=min(env_steps, config.total_env_steps), desc="training (rllib)",
+                  unit="env step", disable=not progress) as bar:
+            while env_steps < config.total_env_steps:
+                result = algo.train()
+                runners = result.get(ENV_RUNNER_RESULTS, {})
+                now = int(runners.get(NUM_ENV_STEPS_SAMPLED_LIFETIME, env_steps))
+                for runner, episode_return, completion, mb in runners.get(EPISODES_KEY, []) or []:
+                    log.add(now, max(runner - 1, 0), episode_return, completion, mb)
+                bar.update(min(now, config.total_env_steps) - min(env_steps, config.total_env_steps))
+                env_steps = now
+                bar.set_postfix(episodes=len(log.rows), rolling_return=f"{log.rolling_return(config.rolling):.3f}")
+                if env_steps < next_chunk and env_steps < config.total_env_steps:
+                    continue
+                next_chunk = (env_steps // config.chunk_env_steps + 1) * config.chunk_env_steps
+                _save_checkpoint(algo, checkpoint)
+                network = export_module(algo.get_module(MODULE))
+                record = {**settings, "env_steps": env_steps, "episodes": len(log.rows),
+                          "rolling_return": log.rolling_return(config.rolling)}
+                save_policy(out / "latest", network, num_agents, record)
+                if log.rows and log.rolling_return(config.rolling) > best or not (out / "best.json").exists():
+                    best = log.rolling_return(config.rolling) if log.rows else best
+                    save_policy(out / "best", network, num_agents, record)
+                log.write()
+                log.plot(out / "learning_curve.png", f"{training_record.get('title', 'training')} (RLlib): "
+                                                     f"{len(log.rows)} episodes, {env_steps} env steps")
+        algo.stop()
+    finally:
+        if started_here:
+            ray.shutdown()
+    return out / "best.json"
+
+
+def _sampled(algo, group: str, key: str) -> int:
+    """The restored algorithm's lifetime count of ``group/key`` (0 when it has none)."""
+    try:
+        value = algo.metrics.peek((group, key), default=0)
+    except (KeyError, AttributeError, TypeError):
+        return 0
+    return int(value) if value is not None and not (isinstance(value, float) and math.isnan(value)) else 0

@@ -1,0 +1,92 @@
+"""``openmulti train --backend rllib``: RLlib's multi-agent PPO with the package's network, run folder and
+policy files."""
+
+from __future__ import annotations
+
+import json
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+pytest.importorskip("ray.rllib")
+torch = pytest.importorskip("torch")
+
+from gymnasium import spaces  # noqa: E402
+
+from policies import make_policy  # noqa: E402
+from policies.observation import MAP_CHANNELS, comm_size  # noqa: E402
+
+
+def _module(actions: int = 6, agents: int = 4):
+    from policies.network import NetworkConfig
+    from policies.rllib_module import CommRLModule
+
+    space = spaces.Dict({"map": spaces.Box(0, 255, (48, 48, len(MAP_CHANNELS)), np.uint8),
+                         "comm": spaces.Box(0.0, 1.0, (comm_size(agents),), np.float32)})
+    config = NetworkConfig(map_channels=len(MAP_CHANNELS), comm_size=comm_size(agents), actions=6).as_dict()
+    return CommRLModule(observation_space=space, action_space=spaces.MultiBinary(actions),
+                        model_config={**config, "vf_share_layers": True}), space  # RLlib adds keys of its own
+
+
+def test_the_rllib_module_exports_to_the_same_policy_and_draws_bernoulli_entries():
+    from ray.rllib.core.columns import Columns
+
+    from policies.rllib_module import BernoulliEntries, export_module
+
+    torch.manual_seed(0)
+    module, space = _module()
+    space.seed(0)
+    batch = [space.sample() for _ in range(5)]
+    obs = {key: torch.as_tensor(np.stack([b[key] for b in batch])) for key in ("map", "comm")}
+    logits = module.forward_inference({Columns.OBS: obs})[Columns.ACTION_DIST_INPUTS]
+    network = export_module(module)
+    exported = network.action(network.features.observe(obs["map"].numpy(), obs["comm"].numpy()))
+    torch.testing.assert_close(exported, logits)  # what RLlib acts on is what the policy file acts on
+    assert np.array_equal(network.act(obs["map"].numpy(), obs["comm"].numpy()), (logits > 0).numpy())
+    values = module.compute_values({Columns.OBS: obs})
+    assert values.shape == (5,) and torch.isfinite(values).all()
+
+    dist = BernoulliEntries.from_logits(logits)
+    draw = dist.sample()
+    assert draw.shape == (5, 6) and set(draw.unique().tolist()) <= {0.0, 1.0}
+    per_entry = torch.distributions.Bernoulli(logits=logits).log_prob(draw).sum(-1)
+    torch.testing.assert_close(dist.logp(draw), per_entry)
+    assert torch.equal(dist.to_deterministic().sample(), (logits > 0).float())
+    with pytest.raises(ValueError, match="6 action entries but the env's action space"):
+        _module(actions=4)
+
+
+def test_one_rllib_iteration_on_two_env_runners_logs_exports_and_resumes(tmp_path):
+    from openmulti_env.runs.train import WorkerEnvs
+    from policies.train import TrainConfig
+    from policies.train_rllib import train_rllib
+
+    factory = WorkerEnvs(("tiny",), workers=2, env_kwargs={"preset": "rl_tiny", "comm_cost_per_mb": 0.01,
+                                                            "cache_dir": str(tmp_path / "worlds")})
+    config = TrainConfig(total_env_steps=16, workers=2, n_steps=8, batch_size=16, n_epochs=1, chunk_env_steps=16)
+    best = train_rllib(factory, config, tmp_path / "run", {"command": "test"}, progress=False)
+    rows = (tmp_path / "run" / "log.csv").read_text().splitlines()
+    assert rows[0] == "env_steps,worker,return,completion,mb"
+    assert sorted(int(r.split(",")[1]) for r in rows[1:]) == [0, 1]  # one 8-step episode on each runner
+    completion, mb = (float(v) for v in rows[1].split(",")[3:5])
+    assert 0 < completion < 100 and mb > 0
+    assert (tmp_path / "run" / "learning_curve.png").stat().st_size > 0
+    policy = make_policy(str(best), 2, seed=0)
+    assert policy.record["training"]["backend"] == "rllib" and policy.record["training"]["env_steps"] == 16
+
+    train_rllib(factory, TrainConfig(**{**config.__dict__, "total_env_steps": 32}), tmp_path / "run",
+                {"command": "test"}, progress=False)
+    latest = json.loads((tmp_path / "run" / "latest.json").read_text())["training"]
+    assert latest["env_steps"] == 32 and latest["episodes"] == 4  # resumed at 16, not started again
+    with pytest.raises(ValueError, match="other settings"):
+        train_rllib(factory, TrainConfig(**{**config.__dict__, "learning_rate": 1.0}), tmp_path / "run", {},
+                    progress=False)
+
+
+def test_train_refuses_ray_without_the_rllib_backend():
+    from openmulti_env.runs.train import train_command
+
+    args = SimpleNamespace(backend="sb3", ray="auto")
+    with pytest.raises(ValueError, match="add --backend rllib"):
+        train_command(args)
