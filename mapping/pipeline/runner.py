@@ -51,6 +51,8 @@ class RunConfig:
     device: str = "auto"
     workers: int = 1
     """Agents trained side by side on threads (``Team(workers=)``; results do not depend on it)."""
+    processes: str | None = None
+    """``"ray"``: every agent in a process of its own (``Team(processes=)``; the same maps on CPU)."""
     threads: int | None = None
     """Torch threads of the evaluation (None: all cores)."""
     checkpoint_every: int = 5
@@ -106,14 +108,17 @@ def run_team(source: Source, record: SourceRecord, config: RunConfig, schedule: 
     # default changed is mapped again, not resumed into a mix of two versions
     forget_stale_checkpoints(out, {**record.settings, "team": as_record(asdict(config.team))})
     team = Team(source.streams(), config.team, source.vocabulary(), seed=config.seed, channel=config.channel,
-                device=config.device, workers=config.workers)
+                device=config.device, workers=config.workers, processes=config.processes)
     try:
         reports = run_rounds(team, schedule, out / "checkpoints" / "team.pt", config)
     finally:
         team.close()  # the worker threads (the team stays usable for evaluation)
     set_threads(config.threads)  # evaluation runs on this thread alone: give it every core again
     gt = source.ground_truth(config.seed)
-    scores = evaluate_team(source, record, gt, team, config)
+    try:
+        scores = evaluate_team(source, record, gt, team, config)
+    finally:
+        team.release()  # member processes end once their maps are copied here
     result = RunResult(**scores, **round_costs(team, reports), wall_s=time.perf_counter() - start,
                        config={**record.settings, **record.described, "team": plain(asdict(config.team))},
                        notes=" ".join(record.notes + [METRICS_NOTE.format(culling=gt.culling_note)]),
@@ -155,7 +160,7 @@ def evaluate_team(source: Source, record: SourceRecord, gt: GroundTruth, team: T
     (out / "meshes").mkdir(parents=True, exist_ok=True)
     gt.mesh.export(out / "meshes" / gt.file_name)
     per_agent, maps = {}, []
-    for member in tqdm(team.members, desc="evaluating", unit="agent", disable=not config.progress):
+    for member in tqdm(team.local_members(), desc="evaluating", unit="agent", disable=not config.progress):
         per_agent[member.name], own = score_member(member, gt, views, seed, out, source.text_encoder,
                                                    source.image_encoder, record.caption)
         maps.append(own)

@@ -185,6 +185,18 @@ class TeamMember(Outbox, Inbox, Agreement):
                 rays_round=self.delivered_round["rays"].get(peer), bytes_sent=int(link_bytes[peer]))
         return states
 
+    def surface_coverage(self, points: np.ndarray, normals: np.ndarray) -> np.ndarray:
+        """Which surface samples its map reproduces (``mapping.evaluate.probe``; the reward's view)."""
+        from mapping.evaluate.probe import surface_probe_coverage  # noqa: PLC0415
+
+        return surface_probe_coverage(self.mapper, points, normals)
+
+    def column_map(self, grid):
+        """Its map read on the columns of ``grid`` (``mapping.topdown.column_map``; the observation's view)."""
+        from mapping.topdown import column_map  # noqa: PLC0415
+
+        return column_map(self.mapper, grid)
+
     # ---- outputs ---------------------------------------------------------------------------------
     def entry(self, iid: int) -> CodeBookEntry:
         """The instance's code-book entry (a more confident peer's meaning when alignment gave one)."""

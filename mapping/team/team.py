@@ -92,19 +92,33 @@ class Team:
         workers: threads that run the agents' local and consistency phases side by side (1: in turn).
             Each agent touches only its own state there (streams are read in the calling thread
             first), so results do not depend on it; give each torch 1 intra-op thread when > 1.
+        processes: None (every member in this process) or ``"ray"``: each member in a Ray actor of its own
+            (``mapping.team.remote``; one process per agent, on this machine or a cluster), exchanging only
+            serialised messages; the streams stay here. The members are then called side by side.
     """
 
     def __init__(self, streams: Sequence[AgentStream], config: TeamConfig, vocabulary: Vocabulary, seed: int = 0,
-                 channel: ChannelConfig = ChannelConfig(), device: str = "auto", workers: int = 1):
+                 channel: ChannelConfig = ChannelConfig(), device: str = "auto", workers: int = 1,
+                 processes: str | None = None):
         if not streams:
             raise ValueError("a team needs at least one agent stream")
         if workers < 1:
             raise ValueError(f"workers must be >= 1, got {workers}")
-        self.workers = min(workers, len(streams))
+        if processes not in (None, "ray"):
+            raise ValueError(f"processes must be None (members in this process) or 'ray', got {processes!r}")
+        self.processes = processes
+        self.workers = len(streams) if processes else min(workers, len(streams))
         self._pool = None
         self.config, self.seed = config, seed
-        self.members = [TeamMember(i, s, config, vocabulary, seed=seed * 100 + i, device=device)
-                        for i, s in enumerate(streams)]
+        if processes == "ray":
+            from mapping.team.remote import RemoteMember, start_member_processes  # noqa: PLC0415
+
+            start_member_processes(len(streams))
+            self.members = [RemoteMember(i, s, config, vocabulary, seed=seed * 100 + i, device=device)
+                            for i, s in enumerate(streams)]
+        else:
+            self.members = [TeamMember(i, s, config, vocabulary, seed=seed * 100 + i, device=device)
+                            for i, s in enumerate(streams)]
         self.channel_config = channel
         self.channel = Channel(len(streams), channel.success_probability, channel.budget_bytes,
                                seed=zlib.crc32(f"channel-{seed}".encode()))
@@ -224,16 +238,17 @@ class Team:
     def surface_coverage(self, points: np.ndarray, normals: np.ndarray) -> list[np.ndarray]:
         """Per agent, which surface samples its map reproduces (``mapping.evaluate.probe``): the reward's and
         the evaluation's view of a map, never an agent's observation. Runs on the worker threads."""
-        from mapping.evaluate.probe import surface_probe_coverage  # noqa: PLC0415
-
-        return self.each_member(lambda m: surface_probe_coverage(m.mapper, points, normals))
+        return self.each_member(lambda m: m.surface_coverage(points, normals))
 
     def column_maps(self, grid) -> list:
         """Per agent, its own map read on the columns of ``grid`` (``mapping.topdown.column_map``): what an
         agent's observation may show of its map. Runs on the worker threads."""
-        from mapping.topdown import column_map  # noqa: PLC0415
+        return self.each_member(lambda m: m.column_map(grid))
 
-        return self.each_member(lambda m: column_map(m.mapper, grid))
+    def local_members(self) -> list[TeamMember]:
+        """Every member as a ``TeamMember`` in this process (members in processes are copied here): what
+        meshing and scoring after a run read."""
+        return [m.copy() if self.processes else m for m in self.members]
 
     def each_member(self, job):
         """``job(member)`` for every member, results in member order; side by side on ``workers``
@@ -252,6 +267,13 @@ class Team:
             self._pool.shutdown()
             self._pool = None
 
+    def release(self) -> None:
+        """End the member processes (``processes="ray"``) and the worker threads; the team is unusable after."""
+        self.close()
+        if self.processes:
+            for member in self.members:
+                member.close()
+
     def __getstate__(self):
         state = dict(self.__dict__)
         state["_pool"] = None
@@ -263,7 +285,8 @@ class Team:
         the channel's counters and draws), written atomically; ``extra`` is stored beside it."""
         return save_checkpoint(path, {"round": self.round_index, "seed": self.seed,
                                       "channel": self.channel.state(), "extra": extra or {},
-                                      "members": [member_state(m) for m in self.members]})
+                                      "members": [m.state() if self.processes else member_state(m)
+                                                  for m in self.members]})
 
     def load(self, path: str | Path) -> dict:
         """Restore a team saved by ``save`` (same streams and config); returns its ``extra``."""
@@ -272,7 +295,10 @@ class Team:
             raise CheckpointError(f"{path}: a team of {len(data['members'])} agents with seed {data['seed']}, "
                                   f"not {self.num_agents} with seed {self.seed}")
         for member, state in zip(self.members, data["members"]):
-            restore_member(member, state)
+            if self.processes:
+                member.restore(state)
+            else:
+                restore_member(member, state)
         self.channel.restore(data["channel"])
         self.round_index = data["round"]
         return data["extra"]

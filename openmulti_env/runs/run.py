@@ -42,7 +42,7 @@ def run(scene: str, agents: int, policy: str, preset: str, seed: int, out: Path,
         global_map: bool = False, global_width: int = GLOBAL_WIDTH,
         global_encoding_scale: float = GLOBAL_ENCODING_SCALE, share_point_clouds: bool = False,
         three_cullings: bool = False, plots: bool = True, workers: int | None = None,
-        missing_edges: str = "skip") -> dict:
+        missing_edges: str = "skip", processes: str | None = None) -> dict:
     """A team run on the simulated ``scene``; returns the metrics written to ``out/metrics.json``.
 
     Args:
@@ -57,6 +57,8 @@ def run(scene: str, agents: int, policy: str, preset: str, seed: int, out: Path,
         cross_rendering: Cross Rendering Supervision on shared rays (eq. 13).
         missing_edges: DiNNO and DSGD with a vector that did not arrive this round: ``skip`` the edge or
             use the ``last`` one held (``ConsistencyConfig.missing_edges``).
+        processes: None (every agent in this process) or ``ray`` (each agent in a Ray actor of its own:
+            ``mapping.team.remote``).
         float16, changed_only: what parameter messages carry (``ExchangeConfig``).
         threads: torch threads (default: all cores).
         checkpoint_every: save the team every this many rounds (an interrupted run resumes from it).
@@ -95,7 +97,7 @@ def run(scene: str, agents: int, policy: str, preset: str, seed: int, out: Path,
     record = SourceRecord(settings, {"map": map_info}, described={"error_rates": asdict(errors)})
     config = RunConfig(Path(out), team, team_channel(scripted, comm_budget_mb), seed=seed, device=device,
                        workers=workers, threads=threads, checkpoint_every=checkpoint_every, max_rounds=max_rounds,
-                       three_cullings=three_cullings, plots=plots, progress=progress,
+                       three_cullings=three_cullings, plots=plots, progress=progress, processes=processes,
                        title=f"{world.scene.name}: policy {policy}")
     try:
         observer = None
@@ -113,7 +115,8 @@ def run_data(data: str | Path, agents: int, policy: str, preset: str, seed: int,
              clip_checkpoint: str | None = None, comm_budget_mb: float | None = None, consistency: str = "consensus",
              cross_rendering: bool = True, float16: bool = False, changed_only: float | None = None,
              threads: int | None = None, checkpoint_every: int = 5, progress: bool = True,
-             max_rounds: int | None = None, workers: int | None = None, missing_edges: str = "skip") -> dict:
+             max_rounds: int | None = None, workers: int | None = None, missing_edges: str = "skip",
+             processes: str | None = None) -> dict:
     """A team run on a real RGB-D data set split into ``agents`` contiguous sequences; returns the metrics
     written to ``out/metrics.json``.
 
@@ -144,7 +147,7 @@ def run_data(data: str | Path, agents: int, policy: str, preset: str, seed: int,
                            missing_edges=missing_edges)
     config = RunConfig(Path(out), team, team_channel(scripted, comm_budget_mb), seed=seed, device=device,
                        workers=workers, threads=threads, checkpoint_every=checkpoint_every, max_rounds=max_rounds,
-                       progress=progress, title=f"{inputs.name}: policy {policy}")
+                       progress=progress, processes=processes, title=f"{inputs.name}: policy {policy}")
     return run_team(source, record, config, PolicySchedule(scripted), start=begun.start).as_json()
 
 

@@ -1,0 +1,254 @@
+"""Team members as processes: each agent's map, fusion and inbox live in a Ray actor of its own (on this
+machine or any node of a cluster), and only serialised messages cross.
+
+``RemoteMember`` stands in for a ``TeamMember`` in ``Team``: the same calls, each run in the agent's actor
+(``MemberProcess``). What crosses a process boundary:
+- the round's frames and segmentations, driver -> actor (the streams stay with the driver: renderer and
+  encoders are not duplicated per agent);
+- every message as its wire bytes (``messages.to_bytes``), decoded and validated on the other side by
+  ``messages.from_bytes`` (a malformed one is refused with ``MessageError``, never applied); the channel on
+  the driver counts and draws them exactly as in-process, so bytes are the same;
+- reports, snapshots and probe results back.
+A member never reads another member's state. ``Team(processes="ray")`` builds these; on CPU a team gives
+the same maps and bytes either way (``tests/test_remote_members.py``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+
+from mapping.team.config import TeamConfig
+from mapping.team.member import AgentStream, LocalReport, TeamMember, Vocabulary
+from mapping.team.messages import Message, from_bytes, to_bytes
+from mapping.team.report import AgentSnapshot, AlignmentCounts, ConsistencyTerms
+
+
+@dataclass(frozen=True)
+class HandedView:
+    """What a member process keeps of a frame it was handed: its pose and intrinsics (all that a ray
+    message, the one later reader of past frames, takes from it)."""
+
+    pose: np.ndarray
+    intrinsics: object
+
+
+class HandedFrames:
+    """The stream as a member process sees it: its length, and the views of the frames handed to it (the
+    frames themselves are read on the driver; their images are not kept)."""
+
+    def __init__(self, length: int):
+        self.length = int(length)
+        self.views: dict[int, HandedView] = {}
+
+    def __len__(self) -> int:
+        return self.length
+
+    def hand(self, first: int, frames: Sequence) -> None:
+        for k, (frame, _) in enumerate(frames):
+            self.views[first + k] = HandedView(np.asarray(frame.pose), frame.intrinsics)
+
+    def read(self, index: int) -> tuple[HandedView, None]:
+        if index not in self.views:
+            raise RuntimeError(f"frame {index} was never handed to this member process (it reads no stream)")
+        return self.views[index], None
+
+
+def _wire(message: Message | None) -> bytes | None:
+    return None if message is None else to_bytes(message)
+
+
+def _unwire(data: bytes | None) -> Message | None:
+    return None if data is None else from_bytes(data)
+
+
+class MemberProcess:
+    """The body of one agent's actor: a ``TeamMember`` and the calls ``RemoteMember`` forwards to it."""
+
+    def __init__(self, index: int, frames: int, config: TeamConfig, vocabulary: Vocabulary, seed: int,
+                 device: str, threads: int | None = None):
+        if threads:
+            import torch  # noqa: PLC0415
+
+            torch.set_num_threads(threads)
+        self.frames = HandedFrames(frames)
+        self.member = TeamMember(index, self.frames, config, vocabulary, seed=seed, device=device)
+
+    def local_round(self, read: tuple[list, float]) -> LocalReport:
+        self.frames.hand(self.member.next_frame, read[0])
+        return self.member.local_round(read)
+
+    def parameter_message(self, receiver: int, round_index: int, degree: int) -> bytes:
+        return _wire(self.member.parameter_message(receiver, round_index, degree))
+
+    def point_cloud_message(self, receiver: int, round_index: int) -> bytes:
+        return _wire(self.member.point_cloud_message(receiver, round_index))
+
+    def ray_message(self, receiver: int, round_index: int, seed: int) -> bytes | None:
+        return _wire(self.member.ray_message(receiver, round_index, seed))
+
+    def acknowledge(self, receiver: int, kind: str, delivered: bool, round_index: int) -> None:
+        self.member.acknowledge(receiver, kind, delivered, round_index)
+
+    def note_rays(self, data: bytes) -> None:
+        self.member.note_rays(_unwire(data))
+
+    def receive_parameters(self, data: bytes) -> AlignmentCounts:
+        return self.member.receive_parameters(_unwire(data))
+
+    def degree_messages(self, round_index: int) -> list[bytes]:
+        return [_wire(m) for m in self.member.degree_messages(round_index)]
+
+    def consistency_round(self, rays: Sequence[bytes], round_index: int, listings: Sequence[bytes],
+                          acknowledged: frozenset) -> ConsistencyTerms:
+        return self.member.consistency_round([_unwire(d) for d in rays], round_index,
+                                             [_unwire(d) for d in listings], acknowledged)
+
+    def snapshot(self, rounds: int, new_frames: Sequence, budget_left_bytes: float,
+                 link_bytes: np.ndarray) -> AgentSnapshot:
+        return self.member.snapshot(rounds, new_frames, budget_left_bytes, link_bytes)
+
+    def surface_coverage(self, points: np.ndarray, normals: np.ndarray) -> np.ndarray:
+        return self.member.surface_coverage(points, normals)
+
+    def column_map(self, grid):
+        return self.member.column_map(grid)
+
+    def state(self) -> dict:
+        from mapping.team.state import member_state  # noqa: PLC0415
+
+        return member_state(self.member)
+
+    def restore(self, state: dict) -> None:
+        from mapping.team.state import restore_member  # noqa: PLC0415
+
+        restore_member(self.member, state)
+
+    def copy(self) -> TeamMember:
+        return self.member
+
+
+def start_member_processes(count: int, threads: int = 1, wait_s: float = 20.0) -> None:
+    """Make sure a Ray is there for ``count`` member processes of ``threads`` CPUs each: join the cluster
+    ``RAY_ADDRESS`` names, or start one on this machine when this process has none (its CPUs at least ``count * threads``: a member computes only while
+    the team calls it), else ValueError when the cluster joined has not had that many CPUs free for
+    ``wait_s`` seconds (the actors would wait for them forever)."""
+    try:
+        import ray  # noqa: PLC0415
+    except ImportError:
+        raise ImportError("team members as processes need Ray: pip install 'openmulti[ray]'") from None
+    import os  # noqa: PLC0415
+
+    wanted = count * threads
+    if not ray.is_initialized() and not os.environ.get("RAY_ADDRESS"):
+        ray.init(num_cpus=max(os.cpu_count() or 1, wanted), include_dashboard=False, log_to_driver=False,
+                 configure_logging=False)
+        return
+    if not ray.is_initialized():  # the cluster RAY_ADDRESS names
+        ray.init(include_dashboard=False, log_to_driver=False, configure_logging=False)
+    import time  # noqa: PLC0415
+
+    deadline = time.monotonic() + wait_s  # the processes of a team just released take a moment to end
+    while (free := ray.available_resources().get("CPU", 0.0)) < wanted and time.monotonic() < deadline:
+        time.sleep(0.2)
+    if free < wanted:
+        raise ValueError(f"a team of {count} member processes asks for {wanted} CPUs but the Ray cluster has "
+                         f"{free:g} free (another team still alive, or too small a cluster)")
+
+
+class RemoteMember:
+    """A ``TeamMember`` whose state lives in a Ray actor; every call blocks until the actor answers (the
+    team's worker threads call several members at once). The stream and its read position stay here."""
+
+    def __init__(self, index: int, stream: AgentStream, config: TeamConfig, vocabulary: Vocabulary, seed: int,
+                 device: str = "cpu", threads: int = 1, resources: dict | None = None):
+        try:
+            import ray  # noqa: PLC0415
+        except ImportError:
+            raise ImportError("team members as processes need Ray: pip install 'openmulti[ray]'") from None
+        self._ray = ray
+        self.index, self.stream, self.config = index, stream, config
+        self.next_frame = 0
+        options = {"num_cpus": threads, **({"num_gpus": 1} if str(device).startswith("cuda") else {}),
+                   **({"resources": resources} if resources else {})}
+        self.actor = ray.remote(MemberProcess).options(**options).remote(
+            index, len(stream), config, vocabulary, seed, device, threads)
+
+    def _call(self, method: str, *args):
+        return self._ray.get(getattr(self.actor, method).remote(*args))
+
+    @property
+    def name(self) -> str:
+        return f"agent_{self.index}"
+
+    @property
+    def done(self) -> bool:
+        return self.next_frame >= len(self.stream)
+
+    def read_round(self) -> tuple[list, float]:
+        """As ``TeamMember.read_round``, on the driver (the stream is here)."""
+        import time  # noqa: PLC0415
+
+        start = time.perf_counter()
+        stop = min(self.next_frame + self.config.frames_per_round, len(self.stream))
+        return [self.stream.read(i) for i in range(self.next_frame, stop)], time.perf_counter() - start
+
+    def local_round(self, read: tuple[list, float] | None = None) -> LocalReport:
+        read = self.read_round() if read is None else read
+        report = self._call("local_round", read)
+        self.next_frame += len(read[0])
+        return report
+
+    def parameter_message(self, receiver: int, round_index: int, degree: int) -> Message:
+        return _unwire(self._call("parameter_message", receiver, round_index, degree))
+
+    def point_cloud_message(self, receiver: int, round_index: int) -> Message:
+        return _unwire(self._call("point_cloud_message", receiver, round_index))
+
+    def ray_message(self, receiver: int, round_index: int, seed: int) -> Message | None:
+        return _unwire(self._call("ray_message", receiver, round_index, seed))
+
+    def acknowledge(self, receiver: int, kind: str, delivered: bool, round_index: int) -> None:
+        self._call("acknowledge", receiver, kind, delivered, round_index)
+
+    def note_rays(self, message: Message) -> None:
+        self._call("note_rays", _wire(message))
+
+    def receive_parameters(self, message: Message) -> AlignmentCounts:
+        return self._call("receive_parameters", _wire(message))
+
+    def degree_messages(self, round_index: int) -> list[Message]:
+        return [_unwire(d) for d in self._call("degree_messages", round_index)]
+
+    def consistency_round(self, ray_messages: Sequence[Message], round_index: int, listings: Sequence[Message] = (),
+                          acknowledged: frozenset = frozenset()) -> ConsistencyTerms:
+        return self._call("consistency_round", [_wire(m) for m in ray_messages], round_index,
+                          [_wire(m) for m in listings], acknowledged)
+
+    def snapshot(self, rounds: int, new_frames: Sequence, budget_left_bytes: float,
+                 link_bytes: np.ndarray) -> AgentSnapshot:
+        return self._call("snapshot", rounds, tuple(new_frames), budget_left_bytes, np.asarray(link_bytes))
+
+    def surface_coverage(self, points: np.ndarray, normals: np.ndarray) -> np.ndarray:
+        return self._call("surface_coverage", points, normals)
+
+    def column_map(self, grid):
+        return self._call("column_map", grid)
+
+    def state(self) -> dict:
+        return self._call("state")
+
+    def restore(self, state: dict) -> None:
+        self._call("restore", state)
+        self.next_frame = int(state["next_frame"])
+
+    def copy(self) -> TeamMember:
+        """The member as it stands in its actor, brought here (for meshing and scoring after the run)."""
+        member = self._call("copy")
+        member.stream = self.stream
+        return member
+
+    def close(self) -> None:
+        self._ray.kill(self.actor)
