@@ -79,3 +79,33 @@ def test_members_in_processes_give_the_same_maps_and_bytes(tiny_world, local_ray
 def test_processes_must_be_named():
     with pytest.raises(ValueError, match="processes must be None"):
         Team([object()], TeamConfig(), None, processes="mpi")
+
+
+def test_the_env_with_agents_in_processes_steps_as_in_one(local_ray, tmp_path):
+    from openmulti_env import parallel_env
+
+    def episode(processes):
+        env = parallel_env(preset="rl_tiny", agent_processes=processes, cache_dir=str(tmp_path / "worlds"))
+        observations, _ = env.reset(seed=3)
+        seen = [observations]
+        rewards = []
+        for _ in range(2):
+            observations, reward, *_ = env.step({a: np.ones(env.action_space(a).shape, np.int8) for a in env.agents})
+            seen.append(observations)
+            rewards.append(reward)
+        env.close()
+        return seen, rewards
+
+    threads = torch.get_num_threads()
+    try:
+        here = episode(None)
+    finally:
+        torch.set_num_threads(threads)
+    apart = episode("ray")
+    assert apart[1] == here[1]
+    for a, b in zip(apart[0], here[0]):
+        for agent in b:
+            assert np.array_equal(a[agent]["map"], b[agent]["map"])
+            np.testing.assert_allclose(a[agent]["comm"], b[agent]["comm"], rtol=0, atol=1e-6)
+    with pytest.raises(ValueError, match="agent_processes must be None or 'ray'"):
+        parallel_env(preset="rl_tiny", agent_processes="mpi")

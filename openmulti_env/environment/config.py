@@ -96,6 +96,9 @@ class EnvConfig:
     agent_workers: int | None = None
     """Threads running the agents' learning side by side (None: one per core, at most one per agent);
     results do not depend on it."""
+    agent_processes: str | None = None
+    """``"ray"``: each agent's mapper in a process of its own (a Ray actor, ``mapping.team.remote``; the same
+    maps and bytes on CPU); None: every agent in the env's process."""
     frame_cache_mb: float = 256.0
     """Rendered frames kept in memory across episodes (the paths repeat; past the cap frames are rendered)."""
     cache_dir: str | None = None
@@ -122,6 +125,8 @@ class EnvConfig:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
         if self.agent_workers is not None and self.agent_workers < 1:
             raise ValueError(f"agent_workers must be >= 1 or None, got {self.agent_workers}")
+        if self.agent_processes not in (None, "ray"):
+            raise ValueError(f"agent_processes must be None or 'ray', got {self.agent_processes!r}")
         if self.map_size < 8:
             raise ValueError(f"map_size must be at least 8 pixels, got {self.map_size}")
         return self
@@ -178,6 +183,6 @@ def env_config(preset: str = DEFAULT_PRESET, **overrides) -> EnvConfig:
     unknown = sorted(set(overrides) - set(FIELD_NAMES))
     if unknown:
         raise TypeError(f"unknown env option(s) {unknown}; the options are {list(FIELD_NAMES)}")
-    nullable = {"horizon", "comm_budget_mb", "changed_only", "threads", "cache_dir", "agent_workers"}
+    nullable = {"horizon", "comm_budget_mb", "changed_only", "threads", "cache_dir", "agent_workers", "agent_processes"}
     chosen = {k: v for k, v in overrides.items() if v is not None or k in nullable}
     return replace(EnvConfig(**preset_fields(get_preset(preset))), **chosen).validate()

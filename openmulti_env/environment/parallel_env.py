@@ -187,11 +187,12 @@ class OpenMultiParallelEnv(ParallelEnv, EzPickle):
         if self._vocabulary is None:
             self._vocabulary = world_vocabulary(self.world, encoder)
         if self.team is not None:  # the old team's maps sit in reference cycles: free them now, not whenever
-            self.team.close()
+            self.team.release()
             self.team = None
             gc.collect()
         self.team = Team(streams, cfg.team_config(), self._vocabulary, seed=episode_seed,
-                         channel=cfg.channel_config(), device=cfg.device, workers=cfg.workers())
+                         channel=cfg.channel_config(), device=cfg.device, workers=cfg.workers(),
+                         processes=cfg.agent_processes)
         self._snapshots = self.team.snapshots()
         self.agents = list(self.possible_agents)
         self.steps = 0
@@ -334,7 +335,7 @@ class OpenMultiParallelEnv(ParallelEnv, EzPickle):
 
     def close(self) -> None:
         if self.team is not None:
-            self.team.close()
+            self.team.release()
         if self.world is not None:
             self.world.close()
 
