@@ -2,9 +2,10 @@
 
 The same run as ``policies.train`` (SB3), in RLlib's terms: one module ``shared`` that every agent maps to
 (parameter sharing: the agents are identical robots), ``workers`` env runners each stepping its own env,
-PPO updates on the learner in this process. Same settings (``TrainConfig``), same run folder (resumable
-checkpoint, ``log.csv``, ``learning_curve.png``, ``latest`` / ``best`` policy files the CLI loads), so the
-two backends compare row for row. Why a second backend: RLlib scales the env runners over a cluster
+PPO updates on the learner in this process. Same settings (``TrainConfig``; RLlib's PPO loss set to SB3's:
+no KL term, value weight 0.5, gradient norm 0.5), same run folder (resumable checkpoint, ``log.csv``,
+``learning_curve.png``, ``latest`` / ``best`` policy files the CLI loads). The two are not the same
+algorithm to the digit (advantage normalisation, minibatching and seeding differ). Why a second backend: RLlib scales the env runners over a cluster
 (``address``), which an env at about one step per second needs.
 
 Read top to bottom: settings -> Ray -> the env registered for the runners -> PPO config with
@@ -38,12 +39,15 @@ def _episode_rows_callback():
     from ray.rllib.callbacks.callbacks import RLlibCallback  # noqa: PLC0415
 
     class EpisodeRows(RLlibCallback):
-        def on_episode_end(self, *, episode, env_runner=None, metrics_logger=None, **kwargs) -> None:
+        def on_episode_end(self, *, episode, prev_episode_chunks=None, env_runner=None, metrics_logger=None,
+                           **kwargs) -> None:
             infos = episode.get_infos(-1)
             first = next(iter(infos.values()), {})
             agents = max(len(episode.agent_ids), 1)
+            # an episode cut at a sample boundary arrives as its last chunk: its return needs the earlier ones
+            total = float(episode.get_return()) + sum(float(c.get_return()) for c in prev_episode_chunks or ())
             metrics_logger.log_value(EPISODES_KEY, (int(getattr(env_runner, "worker_index", 0) or 0),
-                                                    float(episode.get_return()) / agents,
+                                                    total / agents,
                                                     float(first.get("episode_completion", np.nan)),
                                                     float(first.get("episode_mb", np.nan))), reduce="item_series")
 
@@ -61,13 +65,25 @@ def _env_creator(env_factory: Callable[[int], object]):
 
 
 def _save_checkpoint(algo, path: Path) -> None:
-    """``algo.save_to_path`` into a fresh folder, then swapped in: a kill leaves the old or the new one."""
+    """``algo.save_to_path`` into ``<path>.tmp``, then swapped in through ``<path>.old``; a kill at any
+    point leaves a whole checkpoint that ``_recover_checkpoint`` finds."""
     tmp, old = path.with_name(path.name + ".tmp"), path.with_name(path.name + ".old")
     shutil.rmtree(tmp, ignore_errors=True)
     algo.save_to_path(str(tmp.resolve()))
     if path.exists():
+        shutil.rmtree(old, ignore_errors=True)  # left by a kill after an earlier swap
         os.replace(path, old)
     os.replace(tmp, path)
+    shutil.rmtree(old, ignore_errors=True)
+
+
+def _recover_checkpoint(path: Path) -> None:
+    """After a kill in the middle of ``_save_checkpoint``: the old checkpoint back in place when the new one
+    never arrived, and the half-written leftovers gone."""
+    tmp, old = path.with_name(path.name + ".tmp"), path.with_name(path.name + ".old")
+    if not path.exists() and old.exists():
+        os.replace(old, path)
+    shutil.rmtree(tmp, ignore_errors=True)
     shutil.rmtree(old, ignore_errors=True)
 
 
@@ -109,15 +125,21 @@ def train_rllib(env_factory: Callable[[int], object], config: TrainConfig, out: 
                                    actions=int(probe.action_space(agent).n)).as_dict()
     probe.close()
     checkpoint = out / "checkpoint"
+    _recover_checkpoint(checkpoint)
     log = EpisodeLog(out / "log.csv", num_agents)
     resumed_at = int(log.rows[-1]["env_steps"]) if checkpoint.exists() and log.rows else 0
 
     # ---- Ray: here or on a cluster ------------------------------------------------------------------------
     started_here = not ray.is_initialized()
     if started_here:
-        ray.init(address=None if address in (None, "local") else address, include_dashboard=False,
-                 log_to_driver=False, configure_logging=False)
+        local = address in (None, "local")
+        ray.init(address=None if local else address, include_dashboard=False, log_to_driver=False,
+                 configure_logging=False, **({"num_cpus": max(os.cpu_count() or 1, config.workers)} if local else {}))
     try:
+        cpus = ray.cluster_resources().get("CPU", 0.0)
+        if cpus < config.workers:  # the env runners would wait for CPUs forever, and say nothing
+            raise ValueError(f"{config.workers} env runners (--workers) ask for 1 CPU each but the Ray cluster has "
+                             f"{cpus:g}")
         register_env(ENV_NAME, _env_creator(env_factory))
         # ---- PPO: every agent maps to one shared module ----------------------------------------------------
         ppo = (PPOConfig()
@@ -133,7 +155,11 @@ def train_rllib(env_factory: Callable[[int], object], config: TrainConfig, out: 
                .training(train_batch_size_per_learner=config.n_steps * config.workers,
                          minibatch_size=config.batch_size, num_epochs=config.n_epochs, lr=config.learning_rate,
                          gamma=config.gamma, lambda_=config.gae_lambda, entropy_coeff=config.ent_coef,
-                         clip_param=config.clip_range)
+                         clip_param=config.clip_range,
+                         # SB3's PPO loss where RLlib's defaults differ: no KL term, value loss weight 0.5, no
+                         # value clipping, gradients clipped to global norm 0.5
+                         use_kl_loss=False, vf_loss_coeff=0.5, vf_clip_param=float("inf"), grad_clip=0.5,
+                         grad_clip_by="global_norm")
                .callbacks(_episode_rows_callback())
                .debugging(seed=config.seed + resumed_at))  # a resumed run draws new episodes, not the first ones
         algo = ppo.build_algo()

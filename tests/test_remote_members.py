@@ -74,6 +74,17 @@ def test_members_in_processes_give_the_same_maps_and_bytes(tiny_world, local_ray
     back.load(here.save(tmp_path / "here.pt"))
     assert [m.done for m in back.members] == [m.done for m in here.members]
     assert _maps(back).keys() == maps_here.keys()
+    # a restored team in processes goes on as the team in this process does (its ray messages pick mapped
+    # views read before the checkpoint)
+    resumed = back.round(RoundPlan.always(2))
+    torch.set_num_threads(1)
+    try:
+        continued = here.round(RoundPlan.always(2))
+    finally:
+        torch.set_num_threads(threads)
+    assert resumed.bytes_sent == continued.bytes_sent and resumed.delivered == continued.delivered
+    for key, params in _maps(here).items():
+        np.testing.assert_allclose(_maps(back)[key], params, rtol=0, atol=1e-6)
 
 
 def test_processes_must_be_named():

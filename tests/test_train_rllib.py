@@ -64,24 +64,45 @@ def test_one_rllib_iteration_on_two_env_runners_logs_exports_and_resumes(tmp_pat
 
     factory = WorkerEnvs(("tiny",), workers=2, env_kwargs={"preset": "rl_tiny", "comm_cost_per_mb": 0.01,
                                                             "cache_dir": str(tmp_path / "worlds")})
-    config = TrainConfig(total_env_steps=16, workers=2, n_steps=8, batch_size=16, n_epochs=1, chunk_env_steps=16)
+    # 6 rounds per runner and iteration against 8-step episodes: every episode is cut across two samples
+    config = TrainConfig(total_env_steps=24, workers=2, n_steps=6, batch_size=8, n_epochs=1, chunk_env_steps=24)
     best = train_rllib(factory, config, tmp_path / "run", {"command": "test"}, progress=False)
     rows = (tmp_path / "run" / "log.csv").read_text().splitlines()
     assert rows[0] == "env_steps,worker,return,completion,mb"
     assert sorted(int(r.split(",")[1]) for r in rows[1:]) == [0, 1]  # one 8-step episode on each runner
-    completion, mb = (float(v) for v in rows[1].split(",")[3:5])
-    assert 0 < completion < 100 and mb > 0
+    for row in rows[1:]:
+        episode_return, completion, mb = (float(v) for v in row.split(",")[2:5])
+        assert 0 < completion < 100 and mb > 0
+        # the team reward sums to the final completion less the cost of the team's MB per agent: the whole
+        # episode's return, not its last chunk's
+        assert episode_return == pytest.approx(completion / 100 - 0.01 * mb / 2, abs=1e-4)
     assert (tmp_path / "run" / "learning_curve.png").stat().st_size > 0
     policy = make_policy(str(best), 2, seed=0)
-    assert policy.record["training"]["backend"] == "rllib" and policy.record["training"]["env_steps"] == 16
+    assert policy.record["training"]["backend"] == "rllib" and policy.record["training"]["env_steps"] == 24
 
-    train_rllib(factory, TrainConfig(**{**config.__dict__, "total_env_steps": 32}), tmp_path / "run",
+    train_rllib(factory, TrainConfig(**{**config.__dict__, "total_env_steps": 48}), tmp_path / "run",
                 {"command": "test"}, progress=False)
     latest = json.loads((tmp_path / "run" / "latest.json").read_text())["training"]
-    assert latest["env_steps"] == 32 and latest["episodes"] == 4  # resumed at 16, not started again
+    assert latest["env_steps"] == 48 and latest["episodes"] == 4  # resumed at 24 (with new episodes)
+    steps = [int(r.split(",")[0]) for r in (tmp_path / "run" / "log.csv").read_text().splitlines()[1:]]
+    assert steps == [24, 24, 48, 48]
     with pytest.raises(ValueError, match="other settings"):
         train_rllib(factory, TrainConfig(**{**config.__dict__, "learning_rate": 1.0}), tmp_path / "run", {},
                     progress=False)
+
+
+def test_a_checkpoint_swap_cut_by_a_kill_is_recovered(tmp_path):
+    from policies.train_rllib import _recover_checkpoint
+
+    path = tmp_path / "checkpoint"
+    (tmp_path / "checkpoint.old").mkdir()
+    (tmp_path / "checkpoint.old" / "state").write_text("old")
+    (tmp_path / "checkpoint.tmp").mkdir()  # killed between moving the old one aside and moving the new one in
+    _recover_checkpoint(path)
+    assert (path / "state").read_text() == "old" and not (tmp_path / "checkpoint.tmp").exists()
+    (tmp_path / "checkpoint.old").mkdir()  # killed while deleting the old one after a finished swap
+    _recover_checkpoint(path)
+    assert (path / "state").read_text() == "old" and not (tmp_path / "checkpoint.old").exists()
 
 
 def test_train_refuses_ray_without_the_rllib_backend():

@@ -111,6 +111,9 @@ def run_team(source: Source, record: SourceRecord, config: RunConfig, schedule: 
                 device=config.device, workers=config.workers, processes=config.processes)
     try:
         reports = run_rounds(team, schedule, out / "checkpoints" / "team.pt", config)
+    except BaseException:
+        team.release()  # member processes too: a failed run leaves nothing holding CPUs
+        raise
     finally:
         team.close()  # the worker threads (the team stays usable for evaluation)
     set_threads(config.threads)  # evaluation runs on this thread alone: give it every core again

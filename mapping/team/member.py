@@ -33,6 +33,7 @@ from mapping.team.inbox import Inbox
 from mapping.team.messages import InstancePayload
 from mapping.team.outbox import Outbox
 from mapping.team.report import AgentSnapshot, LinkState, PeerKnowledge
+from mapping.topdown import ColumnGrid, ColumnMap, column_map
 
 
 class AgentStream(Protocol):
@@ -191,10 +192,8 @@ class TeamMember(Outbox, Inbox, Agreement):
 
         return surface_probe_coverage(self.mapper, points, normals)
 
-    def column_map(self, grid):
+    def column_map(self, grid: ColumnGrid) -> ColumnMap:
         """Its map read on the columns of ``grid`` (``mapping.topdown.column_map``; the observation's view)."""
-        from mapping.topdown import column_map  # noqa: PLC0415
-
         return column_map(self.mapper, grid)
 
     # ---- outputs ---------------------------------------------------------------------------------

@@ -15,7 +15,7 @@ the same maps and bytes either way (``tests/test_remote_members.py``).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Sequence
 
 import numpy as np
@@ -24,6 +24,7 @@ from mapping.team.config import TeamConfig
 from mapping.team.member import AgentStream, LocalReport, TeamMember, Vocabulary
 from mapping.team.messages import Message, from_bytes, to_bytes
 from mapping.team.report import AgentSnapshot, AlignmentCounts, ConsistencyTerms
+from mapping.topdown import ColumnGrid, ColumnMap
 
 
 @dataclass(frozen=True)
@@ -46,14 +47,19 @@ class HandedFrames:
     def __len__(self) -> int:
         return self.length
 
-    def hand(self, first: int, frames: Sequence) -> None:
-        for k, (frame, _) in enumerate(frames):
-            self.views[first + k] = HandedView(np.asarray(frame.pose), frame.intrinsics)
+    def hand(self, first: int, views: Sequence[HandedView]) -> None:
+        for k, view in enumerate(views):
+            self.views[first + k] = view
 
     def read(self, index: int) -> tuple[HandedView, None]:
         if index not in self.views:
             raise RuntimeError(f"frame {index} was never handed to this member process (it reads no stream)")
         return self.views[index], None
+
+
+def views_of(frames: Sequence) -> list[HandedView]:
+    """The views a member process keeps of ``frames`` (``Frame`` objects, or views already)."""
+    return [HandedView(np.asarray(f.pose), f.intrinsics) for f in frames]
 
 
 def _wire(message: Message | None) -> bytes | None:
@@ -77,8 +83,12 @@ class MemberProcess:
         self.member = TeamMember(index, self.frames, config, vocabulary, seed=seed, device=device)
 
     def local_round(self, read: tuple[list, float]) -> LocalReport:
-        self.frames.hand(self.member.next_frame, read[0])
+        self.frames.hand(self.member.next_frame, views_of([frame for frame, _ in read[0]]))
         return self.member.local_round(read)
+
+    def hand(self, first: int, views: Sequence[HandedView]) -> None:
+        """Views of frames read before a restore (what a ray message of mapped views reads)."""
+        self.frames.hand(first, views)
 
     def parameter_message(self, receiver: int, round_index: int, degree: int) -> bytes:
         return _wire(self.member.parameter_message(receiver, round_index, degree))
@@ -113,7 +123,7 @@ class MemberProcess:
     def surface_coverage(self, points: np.ndarray, normals: np.ndarray) -> np.ndarray:
         return self.member.surface_coverage(points, normals)
 
-    def column_map(self, grid):
+    def column_map(self, grid: ColumnGrid) -> ColumnMap:
         return self.member.column_map(grid)
 
     def state(self) -> dict:
@@ -130,32 +140,52 @@ class MemberProcess:
         return self.member
 
 
-def start_member_processes(count: int, threads: int = 1, wait_s: float = 20.0) -> None:
-    """Make sure a Ray is there for ``count`` member processes of ``threads`` CPUs each: join the cluster
-    ``RAY_ADDRESS`` names, or start one on this machine when this process has none (its CPUs at least ``count * threads``: a member computes only while
-    the team calls it), else ValueError when the cluster joined has not had that many CPUs free for
-    ``wait_s`` seconds (the actors would wait for them forever)."""
+@dataclass(frozen=True)
+class MemberPlacement:
+    """Where the member processes run: the device each maps on and what each actor asks Ray for."""
+
+    device: str
+    num_cpus: float
+    num_gpus: float
+
+
+def start_member_processes(count: int, device: str = "cpu", threads: int = 1, wait_s: float = 20.0) -> MemberPlacement:
+    """Make sure a Ray is there for ``count`` member processes and say what each asks for.
+
+    Joins the cluster ``RAY_ADDRESS`` names, or starts a Ray on this machine when this process has none
+    (with at least ``count * threads`` CPUs: a member computes only while the team calls it). ``cuda``
+    shares the cluster's GPUs between the members (ValueError without any); ``auto`` uses them when there
+    are any, else the CPU. ValueError when the CPUs or GPUs asked for have not been free for ``wait_s``
+    seconds (the actors would wait for them forever, e.g. while another team's processes live)."""
     try:
         import ray  # noqa: PLC0415
     except ImportError:
         raise ImportError("team members as processes need Ray: pip install 'openmulti[ray]'") from None
     import os  # noqa: PLC0415
-
-    wanted = count * threads
-    if not ray.is_initialized() and not os.environ.get("RAY_ADDRESS"):
-        ray.init(num_cpus=max(os.cpu_count() or 1, wanted), include_dashboard=False, log_to_driver=False,
-                 configure_logging=False)
-        return
-    if not ray.is_initialized():  # the cluster RAY_ADDRESS names
-        ray.init(include_dashboard=False, log_to_driver=False, configure_logging=False)
     import time  # noqa: PLC0415
 
+    if not ray.is_initialized():
+        local = {} if os.environ.get("RAY_ADDRESS") else {"num_cpus": max(os.cpu_count() or 1, count * threads)}
+        ray.init(include_dashboard=False, log_to_driver=False, configure_logging=False, **local)
+    gpus = ray.cluster_resources().get("GPU", 0.0)
+    if str(device).startswith("cuda") and gpus <= 0:
+        raise ValueError(f"device {device!r} for member processes, but the Ray cluster has no GPU")
+    on_gpu = str(device).startswith("cuda") or (device == "auto" and gpus > 0)
+    placement = MemberPlacement("cuda" if on_gpu else "cpu", float(threads),
+                                min(1.0, gpus / count) if on_gpu else 0.0)
+    wanted = {"CPU": count * placement.num_cpus, "GPU": count * placement.num_gpus}
     deadline = time.monotonic() + wait_s  # the processes of a team just released take a moment to end
-    while (free := ray.available_resources().get("CPU", 0.0)) < wanted and time.monotonic() < deadline:
+    while True:
+        free = ray.available_resources()
+        short = {k: (v, free.get(k, 0.0)) for k, v in wanted.items() if v > 0 and free.get(k, 0.0) < v - 1e-9}
+        if not short or time.monotonic() > deadline:
+            break
         time.sleep(0.2)
-    if free < wanted:
-        raise ValueError(f"a team of {count} member processes asks for {wanted} CPUs but the Ray cluster has "
-                         f"{free:g} free (another team still alive, or too small a cluster)")
+    if short:
+        raise ValueError(f"a team of {count} member processes asks for "
+                         + ", ".join(f"{v:g} {k}s but the Ray cluster has {f:g} free" for k, (v, f) in short.items())
+                         + " (another team still alive, or too small a cluster)")
+    return placement
 
 
 class RemoteMember:
@@ -163,18 +193,14 @@ class RemoteMember:
     team's worker threads call several members at once). The stream and its read position stay here."""
 
     def __init__(self, index: int, stream: AgentStream, config: TeamConfig, vocabulary: Vocabulary, seed: int,
-                 device: str = "cpu", threads: int = 1, resources: dict | None = None):
-        try:
-            import ray  # noqa: PLC0415
-        except ImportError:
-            raise ImportError("team members as processes need Ray: pip install 'openmulti[ray]'") from None
+                 placement: MemberPlacement = MemberPlacement("cpu", 1.0, 0.0)):
+        import ray  # noqa: PLC0415
+
         self._ray = ray
         self.index, self.stream, self.config = index, stream, config
         self.next_frame = 0
-        options = {"num_cpus": threads, **({"num_gpus": 1} if str(device).startswith("cuda") else {}),
-                   **({"resources": resources} if resources else {})}
-        self.actor = ray.remote(MemberProcess).options(**options).remote(
-            index, len(stream), config, vocabulary, seed, device, threads)
+        self.actor = ray.remote(MemberProcess).options(num_cpus=placement.num_cpus, num_gpus=placement.num_gpus).remote(
+            index, len(stream), config, vocabulary, seed, placement.device, max(1, int(placement.num_cpus)))
 
     def _call(self, method: str, *args):
         return self._ray.get(getattr(self.actor, method).remote(*args))
@@ -229,20 +255,24 @@ class RemoteMember:
 
     def snapshot(self, rounds: int, new_frames: Sequence, budget_left_bytes: float,
                  link_bytes: np.ndarray) -> AgentSnapshot:
-        return self._call("snapshot", rounds, tuple(new_frames), budget_left_bytes, np.asarray(link_bytes))
+        """The member's snapshot; the frames it read stay here (only their views cross)."""
+        snap = self._call("snapshot", rounds, tuple(views_of(new_frames)), budget_left_bytes, np.asarray(link_bytes))
+        return replace(snap, new_frames=tuple(new_frames))
 
     def surface_coverage(self, points: np.ndarray, normals: np.ndarray) -> np.ndarray:
         return self._call("surface_coverage", points, normals)
 
-    def column_map(self, grid):
+    def column_map(self, grid: ColumnGrid) -> ColumnMap:
         return self._call("column_map", grid)
 
     def state(self) -> dict:
         return self._call("state")
 
     def restore(self, state: dict) -> None:
+        """Restore the member, and hand its process the views of the frames read before (re-read here)."""
         self._call("restore", state)
         self.next_frame = int(state["next_frame"])
+        self._call("hand", 0, views_of([self.stream.read(i)[0] for i in range(self.next_frame)]))
 
     def copy(self) -> TeamMember:
         """The member as it stands in its actor, brought here (for meshing and scoring after the run)."""

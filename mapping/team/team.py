@@ -113,8 +113,8 @@ class Team:
         if processes == "ray":
             from mapping.team.remote import RemoteMember, start_member_processes  # noqa: PLC0415
 
-            start_member_processes(len(streams))
-            self.members = [RemoteMember(i, s, config, vocabulary, seed=seed * 100 + i, device=device)
+            placement = start_member_processes(len(streams), device)
+            self.members = [RemoteMember(i, s, config, vocabulary, seed=seed * 100 + i, placement=placement)
                             for i, s in enumerate(streams)]
         else:
             self.members = [TeamMember(i, s, config, vocabulary, seed=seed * 100 + i, device=device)

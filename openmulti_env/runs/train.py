@@ -34,6 +34,7 @@ class WorldCycle(ParallelEnv):
         self.scenes, self.start, self.episodes_per_world = tuple(scenes), int(start), int(episodes_per_world)
         self.env_kwargs = env_kwargs
         self.episodes = 0
+        self.stepped = False  # a reset counts an episode only when steps came before it
         self.summary = {"episode_completion": float("nan"), "episode_mb": float("nan")}
         self.env = OpenMultiParallelEnv(scene=self.scenes[self.start % len(self.scenes)], **env_kwargs)
         self.possible_agents = list(self.env.possible_agents)
@@ -59,16 +60,20 @@ class WorldCycle(ParallelEnv):
         return self.spaces[1]
 
     def reset(self, seed: int | None = None, options: dict | None = None):
+        """The next episode; a reset with no step since the last one (RLlib's wrapper resets once when built)
+        does not count, so every world gets its ``episodes_per_world`` episodes."""
+        self.episodes += self.stepped
+        self.stepped = False
         block = self.episodes // self.episodes_per_world
         scene = self.scenes[(self.start + block) % len(self.scenes)]
         if scene != self.env.config.scene:
             self.env.close()
             self.env = OpenMultiParallelEnv(scene=scene, **self.env_kwargs)
-        self.episodes += 1
         observations, infos = self.env.reset(seed=seed, options=options)
         return observations, self._with_summary(infos)
 
     def step(self, actions):
+        self.stepped = True
         observations, rewards, terminations, truncations, infos = self.env.step(actions)
         if not self.env.agents:
             self.summary = {"episode_completion": float(np.mean([i["completion_ratio"] for i in infos.values()])),
