@@ -59,6 +59,9 @@ def test_team_run_writes_metrics_answers_queries_and_resumes(capsys, tmp_path):
         assert {"acc_cm", "comp_cm", "comp_ratio", "f_miou", "f_macc"} <= set(m)
         assert 0.0 < m["comp_ratio"] <= 100.0 and m["acc_cm"] > 0
         assert 0.0 < m["f_miou"] <= 100.0 and 0.0 < m["f_macc"] <= 100.0
+        # the depth check: the meshed map from the agent's input poses against its sensor depth
+        assert 0.0 < m["depth_median_cm"] < 5.0 and 0.0 <= m["depth_no_surface_pct"] <= m["depth_off_pct"] < 60.0
+    assert "depth err [cm]" in first and (out / "plots" / "rendered_views_agent_0.png").is_file()
     assert 0.0 < metrics["team"]["f_miou"] <= 100.0 and metrics["team"]["per_class"]
     assert metrics["bytes_sent_total"] == sum(metrics["bytes_per_round"]) > 0 and metrics["wall_s"] > 0
     assert metrics["rounds"] == len(metrics["bytes_per_round"]) == 6 and metrics["fleet_s"] > 0

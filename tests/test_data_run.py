@@ -45,6 +45,7 @@ def test_replica_team_always_writes_the_run_contract_and_answers_queries(tmp_pat
     for m in metrics["agents"].values():
         assert KEYS <= set(m) and 0 < m["comp_ratio"] <= 100 and m["acc_cm"] > 0
         assert 0 < m["f_miou"] <= 100 and 0 < m["f_macc"] <= 100
+        assert m["depth_median_cm"] is not None and 0 <= m["depth_off_pct"] <= 100  # against the data's own depth
     assert metrics["ground_truth"] == "given" and metrics["masks"] == "dataset"
     assert metrics["config"]["frames_per_agent"] == {"agent_0": 6, "agent_1": 6}
     # the team ran its rounds (6 frames per agent, 4 per round on tiny) and talked in every one

@@ -45,11 +45,22 @@ def save_reconstruction_views(path: str | Path, gt_mesh, agent_meshes: list) -> 
     return save_figure(fig, path)
 
 
+DEPTH_CLASS_COLOURS = ("white", "tab:green", "tab:red", "black")
+DEPTH_CLASS_NAMES = ("no sensor depth", "within 5 cm", "off > 5 cm", "no surface")
+
+
 def save_view_comparison(path: str | Path, views: list, stride: int, title: str = "") -> Path:
-    """Rows of (sensor RGB, map colour, sensor depth, map depth); ``views`` holds (Frame, colour (h, w, 3),
-    depth (h, w)) with the map rendered at every ``stride``-th pixel."""
-    fig, axes = plt.subplots(len(views), 4, figsize=(12, 2.6 * len(views)), squeeze=False)
-    for row, (frame, colour, depth) in zip(axes, views):
+    """Rows of (sensor RGB, map colour, sensor depth, map depth, and where the meshed map is right against
+    the sensor); ``views`` holds (Frame, colour (h, w, 3), depth (h, w), classes (h, w) of
+    ``mapping.evaluate.depth_check.depth_classes`` or None) with the map rendered at every ``stride``-th pixel."""
+    from matplotlib.colors import ListedColormap  # noqa: PLC0415
+    from matplotlib.patches import Patch  # noqa: PLC0415
+
+    fig, axes = plt.subplots(len(views), 5, figsize=(15, 2.6 * len(views)), squeeze=False)
+    for row, (frame, colour, depth, classes) in zip(axes, views):
+        if classes is not None:
+            row[4].imshow(classes, cmap=ListedColormap(DEPTH_CLASS_COLOURS), vmin=-0.5, vmax=3.5,
+                          interpolation="nearest")
         vmax = float(frame.depth.max()) or 1.0
         row[0].imshow(frame.rgb)
         row[1].imshow(np.clip(colour, 0, 1), interpolation="nearest")
@@ -59,8 +70,11 @@ def save_view_comparison(path: str | Path, views: list, stride: int, title: str 
         for ax in row:
             ax.set_xticks([])
             ax.set_yticks([])
-    for ax, name in zip(axes[0], ("sensor RGB", "map colour", "sensor depth", "map depth")):
+    for ax, name in zip(axes[0], ("sensor RGB", "map colour", "sensor depth", "map depth", "meshed map vs sensor")):
         ax.set_title(name)
+    fig.legend(handles=[Patch(facecolor=c, edgecolor="grey", label=n) for c, n in zip(DEPTH_CLASS_COLOURS, DEPTH_CLASS_NAMES)],
+               loc="lower center", ncol=4, fontsize=8, frameon=False)
+    fig.subplots_adjust(bottom=0.12)
     return save_figure(fig, path, title)
 
 

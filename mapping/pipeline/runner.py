@@ -22,7 +22,7 @@ from tqdm import tqdm
 
 from mapping.checkpoint import CheckpointError
 from mapping.pipeline.records import as_record, forget_stale_checkpoints, plain, write_json_atomic
-from mapping.pipeline.scoring import mean_metrics, score_member, team_semantics
+from mapping.pipeline.scoring import DEPTH_CHECK_EVERY, mean_metrics, score_member, team_semantics
 from mapping.pipeline.source import GroundTruth, Source, SourceRecord
 from mapping.runtime import set_threads
 from mapping.team import AgentSnapshot, ChannelConfig, RoundPlan, Team, TeamConfig
@@ -165,11 +165,12 @@ def evaluate_team(source: Source, record: SourceRecord, gt: GroundTruth, team: T
     per_agent, maps = {}, []
     for member in tqdm(team.local_members(), desc="evaluating", unit="agent", disable=not config.progress):
         per_agent[member.name], own = score_member(member, gt, views, seed, out, source.text_encoder,
-                                                   source.image_encoder, record.caption)
+                                                   source.image_encoder, record.caption,
+                                                   frames=source.agent_frames(member.index, DEPTH_CHECK_EVERY))
         maps.append(own)
         if config.plots:
             save_rendered_views(out / "plots" / f"rendered_views_{member.name}.png", source, member,
-                                f"{source.name} {member.name}: sensor vs map")
+                                f"{source.name} {member.name}: sensor vs map", own.mesh)
     union = team_semantics(maps, gt.semantic, out)
     if config.plots:
         from mapping.pipeline.plots import save_reconstruction_views, save_semantic_classes  # noqa: PLC0415
@@ -209,13 +210,16 @@ def write_outputs(out: Path, result: RunResult, reports: list[dict], config: Run
         save_round_bytes(out / "plots" / "bytes_per_round.png", reports, config.title)
 
 
-def save_rendered_views(path: Path, source: Source, member, title: str) -> None:
-    """A few of the agent's frames: the sensor's RGB and depth beside the map rendered from the same pose."""
+def save_rendered_views(path: Path, source: Source, member, title: str, mesh=None) -> None:
+    """A few of the agent's frames: the sensor's RGB and depth beside the map rendered from the same pose,
+    and where its ``mesh`` is right, off or missing against the sensor depth."""
+    from mapping.evaluate.depth_check import depth_classes  # noqa: PLC0415
     from mapping.pipeline.plots import save_view_comparison  # noqa: PLC0415
 
     frames, stride = source.sensor_views(member.index)
     views = []
     for frame in frames:
         rendered = member.mapper.render_view(frame.pose, frame.intrinsics, stride=stride)
-        views.append((frame, rendered.colour.cpu().numpy(), rendered.depth.cpu().numpy()))
+        views.append((frame, rendered.colour.cpu().numpy(), rendered.depth.cpu().numpy(),
+                      None if mesh is None else depth_classes(mesh, frame, stride)))
     save_view_comparison(path, views, stride, title)

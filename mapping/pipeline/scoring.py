@@ -16,13 +16,15 @@ from __future__ import annotations
 
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Callable
+from typing import Callable, Sequence
 
 import numpy as np
 import trimesh
 
 from mapping.evaluate import evaluate_mesh, export_scene_mesh, merge_instance_meshes
+from mapping.data.frame import Frame
 from mapping.evaluate.culling import cull_to_frustums
+from mapping.evaluate.depth_check import depth_check
 from mapping.evaluate.semantic import SemanticMetrics, semantic_metrics, zero_shot_labels
 from mapping.evaluate.visibility import cull_to_viewpoints
 from mapping.perception import CodeBook
@@ -35,6 +37,13 @@ CULLING_SUFFIXES = {"free_space": "", "nice_slam": "_nice", "unculled": "_uncull
 """Metric keys per culling: ``acc_cm`` (free space), ``acc_cm_nice``, ``acc_cm_unculled``; same for comp."""
 CULLING_KEYS = tuple(f"{m}{s}" for s in ("_nice", "_unculled") for m in ("acc_cm", "comp_cm", "comp_ratio"))
 """The same geometry under the other cullings, averaged like the rest."""
+DEPTH_KEYS = ("depth_median_cm", "depth_off_pct", "depth_no_surface_pct")
+"""The depth check (``mapping.evaluate.depth_check``): the map ray cast from the agent's input poses against
+its sensor depth."""
+DEPTH_CHECK_EVERY = 5
+"""The depth check uses every this-many-th of the agent's input frames..."""
+DEPTH_CHECK_STRIDE = 4
+"""...and every this-many-th pixel of them."""
 TEAM_ID_STRIDE = 100_000
 """Agent k's instance i is ``k * TEAM_ID_STRIDE + i`` in the union of all agents' maps."""
 
@@ -67,10 +76,12 @@ def score_three_ways(mesh: trimesh.Trimesh | None, gt: trimesh.Trimesh, viewpoin
 
 
 def score_member(member: TeamMember, gt: GroundTruth, views: CameraViews | None, seed: int, out: Path,
-                 encoder, image_encoder, caption: Callable[[int, str], str] | None = None) -> tuple[dict, MemberMap]:
+                 encoder, image_encoder, caption: Callable[[int, str], str] | None = None,
+                 frames: Sequence[Frame] = ()) -> tuple[dict, MemberMap]:
     """Mesh one member's own map (``out/meshes/<name>.ply``), label its code book against the ground
     truth's categories (``out/codebook/<name>``; ``caption(id, caption)`` renames the captions written),
-    score it (``score_three_ways``) and, where the ground truth has categories, its F-mIoU / F-mAcc."""
+    score it (``score_three_ways``), where the ground truth has categories its F-mIoU / F-mAcc, and against
+    the sensor depth of ``frames`` (its own input frames: ``depth_check``)."""
     name, mapper = member.name, member.mapper
     book = member.codebook()
     labels = zero_shot_labels(book, gt.categories, encoder, image_encoder) if book else {}
@@ -82,6 +93,9 @@ def score_member(member: TeamMember, gt: GroundTruth, views: CameraViews | None,
     semantic = None if gt.semantic is None else semantic_metrics(*gt.semantic, np.asarray(mesh.vertices), ids, labels)
     scores = score_three_ways(mesh if has_mesh else None, gt.mesh, gt.viewpoints, views, seed)
     adopted = sum(1 for i in mapper.live_ids() if not mapper.keyframes.has_pixels(i))
+    check = depth_check(mesh if has_mesh else None, frames, stride=DEPTH_CHECK_STRIDE)
+    scores.update(depth_median_cm=check.median_cm, depth_off_pct=check.off_pct,
+                  depth_no_surface_pct=check.no_surface_pct)
     return ({**scores, "f_miou": None if semantic is None else semantic.f_miou,
              "f_macc": None if semantic is None else semantic.f_macc,
              "instances": len(mapper.live_ids()), "instances_without_own_pixels": adopted},
@@ -106,7 +120,7 @@ def team_semantics(maps: list[MemberMap], semantic_gt: tuple[np.ndarray, np.ndar
 
 def mean_metrics(per_agent: dict[str, dict]) -> dict:
     """The mean over agents of every metric all agents have (``METRIC_KEYS`` and the other cullings')."""
-    keys = [k for k in METRIC_KEYS + CULLING_KEYS if all(k in m for m in per_agent.values())]
+    keys = [k for k in METRIC_KEYS + CULLING_KEYS + DEPTH_KEYS if all(k in m for m in per_agent.values())]
     return {k: mean_or_none([m[k] for m in per_agent.values()]) for k in keys}
 
 

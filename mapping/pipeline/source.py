@@ -70,6 +70,10 @@ class Source(Protocol):
         """A few of the agent's frames for the sensor-vs-map pictures, and the pixel stride to render at."""
         ...
 
+    def agent_frames(self, agent: int, every: int) -> list[Frame]:
+        """Every ``every``-th of the agent's input frames (the depth check's views)."""
+        ...
+
     def camera_views(self, stride: int) -> CameraViews | None:
         """The agents' cameras with their observed depth for NICE-SLAM culling (None: not available)."""
         ...

@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from mapping.pipeline.runner import RunResult
+from mapping.pipeline.scoring import DEPTH_CHECK_EVERY
 
 
 def _fmt(x: float | None) -> str:
@@ -15,14 +16,15 @@ def results_table(result: RunResult, out: Path) -> list[str]:
     """Accuracy, completion, completion ratio, F-mIoU / F-mAcc, instances and compute per agent, their
     mean, all maps' semantics; bytes, messages and fleet time; what was written."""
     lines = [f"{'agent':<10} {'acc [cm]':>9} {'comp [cm]':>10} {'comp ratio [%]':>15} {'F-mIoU':>7} {'F-mAcc':>7} "
-             f"{'instances':>10} {'compute [s]':>12}"]
+             f"{'depth err [cm]':>15} {'depth off [%]':>14} {'instances':>10} {'compute [s]':>12}"]
     for name, m in result.agents.items():
         lines.append(f"{name:<10} {_fmt(m['acc_cm']):>9} {_fmt(m['comp_cm']):>10} {_fmt(m['comp_ratio']):>15} "
-                     f"{_fmt(m['f_miou']):>7} {_fmt(m['f_macc']):>7} {m['instances']:>10} "
-                     f"{result.compute_s[name]:>12.1f}")
+                     f"{_fmt(m['f_miou']):>7} {_fmt(m['f_macc']):>7} {_fmt(m.get('depth_median_cm')):>15} "
+                     f"{_fmt(m.get('depth_off_pct')):>14} {m['instances']:>10} {result.compute_s[name]:>12.1f}")
     mean, team = result.mean, result.team
     lines.append(f"{'mean':<10} {_fmt(mean['acc_cm']):>9} {_fmt(mean['comp_cm']):>10} {_fmt(mean['comp_ratio']):>15} "
-                 f"{_fmt(mean['f_miou']):>7} {_fmt(mean['f_macc']):>7}")
+                 f"{_fmt(mean['f_miou']):>7} {_fmt(mean['f_macc']):>7} {_fmt(mean.get('depth_median_cm')):>15} "
+                 f"{_fmt(mean.get('depth_off_pct')):>14}")
     lines.append(f"{'all maps':<10} {'':>9} {'':>10} {'':>15} {_fmt(team['f_miou']):>7} {_fmt(team['f_macc']):>7}")
     if "ground_truth" in result.extra:  # a data set: say what the geometry was scored against
         against = ("the given ground-truth mesh (culled to what the cameras see)"
@@ -30,6 +32,8 @@ def results_table(result: RunResult, out: Path) -> list[str]:
         masks = result.extra.get("masks")
         lines.append(f"geometry scored against {against}; masks: {masks}"
                      + (" (semantics are geometric only)" if masks == "geometric" else ""))
+    lines.append(f"depth err / off: each map ray cast from every {DEPTH_CHECK_EVERY}th of its agent's input poses against "
+                 "the sensor depth: median error, and % of valid pixels off by > 5 cm or with no surface")
     msgs = result.messages
     lines += ["", f"{result.rounds} rounds; {result.bytes_sent_total / 1e6:.2f} MB sent "
               f"({result.bytes_per_round_per_agent_mean / 1e6:.2f} MB per round per agent); messages delivered "
