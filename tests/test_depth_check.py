@@ -51,3 +51,28 @@ def test_missing_surface_counts_as_off():
     assert depth_check(wall, []).off_pct is None
     with pytest.raises(ValueError, match="stride must be >= 1"):
         depth_check(wall, [_frame(sensor, pose, k)], stride=0)
+
+
+def test_held_out_frames_stay_out_of_the_map_and_are_scored(tmp_path, tiny_world):
+    from dataclasses import replace
+
+    from mapping.team import RoundPlan, Team, TeamConfig
+    from openmulti_env.presets import mapping_config
+    from openmulti_env.runs.run import run
+    from openmulti_env.world.stream import world_streams, world_vocabulary
+
+    with pytest.raises(ValueError, match="holdout_every must be >= 2"):
+        TeamConfig(holdout_every=1)
+    config = TeamConfig(holdout_every=3)
+    assert [p for p in range(9) if config.held_out(p)] == [2, 5, 8] and not TeamConfig().held_out(2)
+    streams = world_streams(tiny_world, seed=0, segmentation_errors=False)
+    team = Team(streams, TeamConfig(mapping=replace(mapping_config("tiny"), iterations_per_keyframe=1),
+                                    frames_per_round=6, holdout_every=3), world_vocabulary(tiny_world), device="cpu")
+    team.round(RoundPlan.never(2))
+    assert all(m.fusion.frames_seen == 4 and m.mapper.frames_seen == 4 and m.next_frame == 6 for m in team.members)
+    metrics = run("tiny", 2, "always", "tiny", 0, tmp_path / "run", device="cpu", holdout_every=3, plots=False,
+                  threads=1)
+    assert metrics["config"]["team"]["holdout_every"] == 3
+    for m in metrics["agents"].values():
+        assert m["depth_heldout_median_cm"] is not None and 0 <= m["depth_heldout_off_pct"] <= 100
+    assert "depth_heldout_off_pct" in metrics["mean"]

@@ -295,9 +295,9 @@ class DataSource:
         seq = list(self.inputs.frames.values())[agent]
         return [seq[i] for i in sorted({len(seq) // 3, 2 * len(seq) // 3})], max(1, seq.intrinsics.width // 80)
 
-    def agent_frames(self, agent: int, every: int) -> list[Frame]:
+    def agent_frames(self, agent: int, every: int, offset: int = 0) -> list[Frame]:
         seq = list(self.inputs.frames.values())[agent]
-        return [seq[i] for i in range(0, len(seq), max(1, every))]
+        return [seq[i] for i in range(offset, len(seq), max(1, every))]
 
     def camera_views(self, stride: int) -> CameraViews | None:
         return None

@@ -166,7 +166,8 @@ def evaluate_team(source: Source, record: SourceRecord, gt: GroundTruth, team: T
     for member in tqdm(team.local_members(), desc="evaluating", unit="agent", disable=not config.progress):
         per_agent[member.name], own = score_member(member, gt, views, seed, out, source.text_encoder,
                                                    source.image_encoder, record.caption,
-                                                   frames=source.agent_frames(member.index, DEPTH_CHECK_EVERY))
+                                                   frames=source.agent_frames(member.index, DEPTH_CHECK_EVERY),
+                                                   heldout=heldout_frames(source, member.index, config.team))
         maps.append(own)
         if config.plots:
             save_rendered_views(out / "plots" / f"rendered_views_{member.name}.png", source, member,
@@ -208,6 +209,12 @@ def write_outputs(out: Path, result: RunResult, reports: list[dict], config: Run
         from mapping.pipeline.plots import save_round_bytes  # noqa: PLC0415
 
         save_round_bytes(out / "plots" / "bytes_per_round.png", reports, config.title)
+
+
+def heldout_frames(source: Source, agent: int, team: TeamConfig) -> list:
+    """The agent's frames its map never saw (``TeamConfig.holdout_every``; none without it)."""
+    k = team.holdout_every
+    return [] if k is None else source.agent_frames(agent, k, offset=k - 1)
 
 
 def save_rendered_views(path: Path, source: Source, member, title: str, mesh=None) -> None:

@@ -37,7 +37,8 @@ CULLING_SUFFIXES = {"free_space": "", "nice_slam": "_nice", "unculled": "_uncull
 """Metric keys per culling: ``acc_cm`` (free space), ``acc_cm_nice``, ``acc_cm_unculled``; same for comp."""
 CULLING_KEYS = tuple(f"{m}{s}" for s in ("_nice", "_unculled") for m in ("acc_cm", "comp_cm", "comp_ratio"))
 """The same geometry under the other cullings, averaged like the rest."""
-DEPTH_KEYS = ("depth_median_cm", "depth_off_pct", "depth_no_surface_pct")
+DEPTH_KEYS = ("depth_median_cm", "depth_off_pct", "depth_no_surface_pct", "depth_heldout_median_cm",
+              "depth_heldout_off_pct")
 """The depth check (``mapping.evaluate.depth_check``): the map ray cast from the agent's input poses against
 its sensor depth."""
 DEPTH_CHECK_EVERY = 5
@@ -77,11 +78,12 @@ def score_three_ways(mesh: trimesh.Trimesh | None, gt: trimesh.Trimesh, viewpoin
 
 def score_member(member: TeamMember, gt: GroundTruth, views: CameraViews | None, seed: int, out: Path,
                  encoder, image_encoder, caption: Callable[[int, str], str] | None = None,
-                 frames: Sequence[Frame] = ()) -> tuple[dict, MemberMap]:
+                 frames: Sequence[Frame] = (), heldout: Sequence[Frame] = ()) -> tuple[dict, MemberMap]:
     """Mesh one member's own map (``out/meshes/<name>.ply``), label its code book against the ground
     truth's categories (``out/codebook/<name>``; ``caption(id, caption)`` renames the captions written),
     score it (``score_three_ways``), where the ground truth has categories its F-mIoU / F-mAcc, and against
-    the sensor depth of ``frames`` (its own input frames: ``depth_check``)."""
+    the sensor depth of ``frames`` (its own input frames: ``depth_check``) and of ``heldout`` (frames kept
+    out of its map: ``TeamConfig.holdout_every``; the ``depth_heldout_*`` keys only when given)."""
     name, mapper = member.name, member.mapper
     book = member.codebook()
     labels = zero_shot_labels(book, gt.categories, encoder, image_encoder) if book else {}
@@ -96,6 +98,9 @@ def score_member(member: TeamMember, gt: GroundTruth, views: CameraViews | None,
     check = depth_check(mesh if has_mesh else None, frames, stride=DEPTH_CHECK_STRIDE)
     scores.update(depth_median_cm=check.median_cm, depth_off_pct=check.off_pct,
                   depth_no_surface_pct=check.no_surface_pct)
+    if heldout:
+        unseen = depth_check(mesh if has_mesh else None, heldout, stride=DEPTH_CHECK_STRIDE)
+        scores.update(depth_heldout_median_cm=unseen.median_cm, depth_heldout_off_pct=unseen.off_pct)
     return ({**scores, "f_miou": None if semantic is None else semantic.f_miou,
              "f_macc": None if semantic is None else semantic.f_macc,
              "instances": len(mapper.live_ids()), "instances_without_own_pixels": adopted},

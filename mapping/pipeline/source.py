@@ -70,8 +70,9 @@ class Source(Protocol):
         """A few of the agent's frames for the sensor-vs-map pictures, and the pixel stride to render at."""
         ...
 
-    def agent_frames(self, agent: int, every: int) -> list[Frame]:
-        """Every ``every``-th of the agent's input frames (the depth check's views)."""
+    def agent_frames(self, agent: int, every: int, offset: int = 0) -> list[Frame]:
+        """The agent's input frames at stream positions ``offset``, ``offset + every``, ... (the depth
+        check's views)."""
         ...
 
     def camera_views(self, stride: int) -> CameraViews | None:

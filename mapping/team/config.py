@@ -135,3 +135,14 @@ class TeamConfig:
     global_map: bool = False
     """One network for the whole scene (``mapping.team.global_map``) instead of one per instance: the
     global baselines. Set ``mapping.global_frame`` to the scene box with it."""
+    holdout_every: int | None = None
+    """Keep every k-th frame of each agent's stream (stream positions k-1, 2k-1, ...) out of its map: neither
+    fused nor trained on, so the depth check can score views the map never saw. None: every frame mapped."""
+
+    def __post_init__(self) -> None:
+        if self.holdout_every is not None and self.holdout_every < 2:
+            raise ValueError(f"holdout_every must be >= 2 (or None), got {self.holdout_every}")
+
+    def held_out(self, position: int) -> bool:
+        """Whether the frame at this position of an agent's stream is kept out of its map."""
+        return self.holdout_every is not None and position % self.holdout_every == self.holdout_every - 1

@@ -133,7 +133,8 @@ class TeamMember(Outbox, Inbox, Agreement):
         self.max_frame_read = max(self.max_frame_read, stop - 1)
         indices = list(range(self.next_frame, stop))
         self.next_frame = stop
-        frames, segs = [f for f, _ in read], [s for _, s in read]
+        kept = [pair for i, pair in zip(indices, read) if not self.config.held_out(i)]
+        frames, segs = [f for f, _ in kept], [s for _, s in kept]
         images = self.fusion.add_round(frames, segs)
         if self.config.global_map:
             images = [as_global_image(image) for image in images]

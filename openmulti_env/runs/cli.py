@@ -107,7 +107,7 @@ def cmd_run(args: argparse.Namespace) -> int:
                         comm_budget_mb=args.comm_budget_mb, consistency=args.consistency,
                         missing_edges=args.missing_edges, cross_rendering=args.cross_rendering,
                         float16=args.float16, changed_only=args.changed_only, threads=args.threads,
-                        workers=args.workers, processes=args.processes)
+                        workers=args.workers, processes=args.processes, holdout_every=args.holdout_every)
     what = f"scene {args.scene}" if args.data is None else f"data {args.data}"
     print(f"[openmulti] {what}, {args.agents} agents, preset {args.preset}, seed {args.seed}, "
           f"policy {policy}, alignment {args.alignment}, consistency {args.consistency}"
@@ -232,6 +232,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--workers", type=int,
                    help="agents trained side by side on threads (default: one per core, 1 torch thread each; "
                         "1 when --threads is given); results do not depend on it")
+    p.add_argument("--holdout-every", type=int, metavar="K",
+                   help="keep every K-th frame of each agent out of its map and report the map's depth error on "
+                        "those unseen views too (depth_heldout_* in metrics.json); K >= 2")
     p.add_argument("--processes", choices=("ray",),
                    help="ray: every agent maps in a process of its own (a Ray actor, here or on the cluster of "
                         "RAY_ADDRESS), exchanging only serialised messages; the same maps on CPU. Needs "

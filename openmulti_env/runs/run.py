@@ -42,7 +42,7 @@ def run(scene: str, agents: int, policy: str, preset: str, seed: int, out: Path,
         global_map: bool = False, global_width: int = GLOBAL_WIDTH,
         global_encoding_scale: float = GLOBAL_ENCODING_SCALE, share_point_clouds: bool = False,
         three_cullings: bool = False, plots: bool = True, workers: int | None = None,
-        missing_edges: str = "skip", processes: str | None = None) -> dict:
+        missing_edges: str = "skip", processes: str | None = None, holdout_every: int | None = None) -> dict:
     """A team run on the simulated ``scene``; returns the metrics written to ``out/metrics.json``.
 
     Args:
@@ -59,6 +59,8 @@ def run(scene: str, agents: int, policy: str, preset: str, seed: int, out: Path,
             use the ``last`` one held (``ConsistencyConfig.missing_edges``).
         processes: None (every agent in this process) or ``ray`` (each agent in a Ray actor of its own:
             ``mapping.team.remote``).
+        holdout_every: keep every k-th frame of each agent out of its map and score the map's depth there
+            (``depth_heldout_*``; ``TeamConfig.holdout_every``).
         float16, changed_only: what parameter messages carry (``ExchangeConfig``).
         threads: torch threads (default: all cores).
         checkpoint_every: save the team every this many rounds (an interrupted run resumes from it).
@@ -92,7 +94,8 @@ def run(scene: str, agents: int, policy: str, preset: str, seed: int, out: Path,
                              segmentation_errors)
     mapping, map_info = map_structure(world, chosen, global_map, global_width, global_encoding_scale)
     team = run_team_config(chosen, alignment, consistency, cross_rendering, float16, changed_only, mapping=mapping,
-                           global_map=global_map, share_point_clouds=share_point_clouds, missing_edges=missing_edges)
+                           global_map=global_map, share_point_clouds=share_point_clouds, missing_edges=missing_edges,
+                           holdout_every=holdout_every)
     errors = SegmentationErrorConfig() if segmentation_errors else SegmentationErrorConfig.none()
     record = SourceRecord(settings, {"map": map_info}, described={"error_rates": asdict(errors)})
     config = RunConfig(Path(out), team, team_channel(scripted, comm_budget_mb), seed=seed, device=device,
@@ -116,7 +119,7 @@ def run_data(data: str | Path, agents: int, policy: str, preset: str, seed: int,
              cross_rendering: bool = True, float16: bool = False, changed_only: float | None = None,
              threads: int | None = None, checkpoint_every: int = 5, progress: bool = True,
              max_rounds: int | None = None, workers: int | None = None, missing_edges: str = "skip",
-             processes: str | None = None) -> dict:
+             processes: str | None = None, holdout_every: int | None = None) -> dict:
     """A team run on a real RGB-D data set split into ``agents`` contiguous sequences; returns the metrics
     written to ``out/metrics.json``.
 
@@ -144,7 +147,7 @@ def run_data(data: str | Path, agents: int, policy: str, preset: str, seed: int,
                             "cross_rendering": cross_rendering, "float16": float16, "changed_only": changed_only,
                             **({"missing_edges": missing_edges} if consistency in ("dinno", "dsgd") else {})})
     team = run_team_config(chosen, alignment, consistency, cross_rendering, float16, changed_only,
-                           missing_edges=missing_edges)
+                           missing_edges=missing_edges, holdout_every=holdout_every)
     config = RunConfig(Path(out), team, team_channel(scripted, comm_budget_mb), seed=seed, device=device,
                        workers=workers, threads=threads, checkpoint_every=checkpoint_every, max_rounds=max_rounds,
                        progress=progress, processes=processes, title=f"{inputs.name}: policy {policy}")
@@ -238,9 +241,11 @@ def team_channel(policy, comm_budget_mb: float | None) -> ChannelConfig:
 
 def run_team_config(preset: Preset, alignment: str, consistency: str, cross_rendering: bool, float16: bool,
                     changed_only: float | None, mapping: MappingConfig | None = None, global_map: bool = False,
-                    share_point_clouds: bool = False, missing_edges: str = "skip") -> TeamConfig:
+                    share_point_clouds: bool = False, missing_edges: str = "skip",
+                    holdout_every: int | None = None) -> TeamConfig:
     """The team settings of a run from its command-line options (on the preset's ``team_config``)."""
     return preset.team_config(mapping=mapping, alignment=alignment == "paper", global_map=global_map,
+                              holdout_every=holdout_every,
                               consistency={"algorithm": consistency, "cross_rendering": cross_rendering,
                                            "missing_edges": missing_edges},
                               exchange=ExchangeConfig(float16=float16, changed_only=changed_only,

@@ -50,8 +50,8 @@ class SimulatedSource:
         n = len(self.world.agent_poses[agent])
         return [self.world.render(agent, i) for i in (n // 3, 2 * n // 3)], SENSOR_VIEW_STRIDE
 
-    def agent_frames(self, agent: int, every: int) -> list[Frame]:
-        return [self.world.render(agent, i) for i in range(0, len(self.world.agent_poses[agent]), max(1, every))]
+    def agent_frames(self, agent: int, every: int, offset: int = 0) -> list[Frame]:
+        return [self.world.render(agent, i) for i in range(offset, len(self.world.agent_poses[agent]), max(1, every))]
 
     def camera_views(self, stride: int) -> CameraViews:
         """Every ``stride``-th pose of every agent's path with the depth the sensor observed there (the
