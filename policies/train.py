@@ -143,7 +143,12 @@ class EpisodeLog:
             values = np.array([r[key] for r in self.rows])
             ax.plot(steps, values, ".", alpha=0.35, color="tab:blue")
             k = min(len(values), 10)
-            if k > 1:
+            xs, group = np.unique(steps, return_inverse=True)
+            if len(xs) < len(steps):  # rows share their env steps (RLlib logs at the end of each iteration)
+                ax.plot(xs, [np.nanmean(values[group == g]) for g in range(len(xs))], color="tab:red",
+                        label="mean per iteration")
+                ax.legend(loc="best", fontsize=8)
+            elif k > 1:
                 ax.plot(steps[k - 1:], np.convolve(values, np.ones(k) / k, mode="valid"), color="tab:red",
                         label=f"mean of {k}")
                 ax.legend(loc="best", fontsize=8)
