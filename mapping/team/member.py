@@ -81,7 +81,32 @@ class LocalReport:
     """The consensus term (eq. 12) of the last local iteration (``local_consensus``; 0 without)."""
 
 
-class TeamMember(Outbox, Inbox, Agreement):
+class StreamReader:
+    """An agent's stream and how far it has read it: the part of a member that stays with the streams
+    (``TeamMember`` here, ``mapping.team.remote.RemoteMember`` on the driver of a member in a process)."""
+
+    index: int
+    stream: AgentStream
+    config: TeamConfig
+    next_frame: int
+
+    @property
+    def name(self) -> str:
+        return f"agent_{self.index}"
+
+    @property
+    def done(self) -> bool:
+        return self.next_frame >= len(self.stream)
+
+    def read_round(self) -> tuple[list[tuple[Frame, FrameSegmentation]], float]:
+        """The round's frames and their segmentations from the stream (not yet taken), with the seconds
+        it took; the stream (renderer, segmenter, text encoder) is only ever called from one thread."""
+        start = time.perf_counter()
+        stop = min(self.next_frame + self.config.frames_per_round, len(self.stream))
+        return [self.stream.read(i) for i in range(self.next_frame, stop)], time.perf_counter() - start
+
+
+class TeamMember(StreamReader, Outbox, Inbox, Agreement):
     """Agent ``index`` of a team (see the module docstring for the round's calls)."""
 
     def __init__(self, index: int, stream: AgentStream, config: TeamConfig, vocabulary: Vocabulary, seed: int,
@@ -109,22 +134,7 @@ class TeamMember(Outbox, Inbox, Agreement):
         self.delivered_round: dict[str, dict[int, int]] = {"params": {}, "rays": {}, "points": {}}  # kind -> peer -> round
         self._last_position: np.ndarray | None = None
 
-    @property
-    def name(self) -> str:
-        return f"agent_{self.index}"
-
-    @property
-    def done(self) -> bool:
-        return self.next_frame >= len(self.stream)
-
     # ---- 1-3: perceive, fuse, local iterations ---------------------------------------------------
-    def read_round(self) -> tuple[list[tuple[Frame, FrameSegmentation]], float]:
-        """The round's frames and their segmentations from the stream (not yet taken), with the seconds
-        it took; the stream (renderer, segmenter, text encoder) is only ever called from one thread."""
-        start = time.perf_counter()
-        stop = min(self.next_frame + self.config.frames_per_round, len(self.stream))
-        return [self.stream.read(i) for i in range(self.next_frame, stop)], time.perf_counter() - start
-
     def local_round(self, read: tuple[list, float] | None = None) -> LocalReport:
         """Take the round's frames (``read_round``'s result, read now when None), fuse, train."""
         read, read_s = self.read_round() if read is None else read

@@ -21,7 +21,7 @@ from typing import Sequence
 import numpy as np
 
 from mapping.team.config import TeamConfig
-from mapping.team.member import AgentStream, LocalReport, TeamMember, Vocabulary
+from mapping.team.member import AgentStream, LocalReport, StreamReader, TeamMember, Vocabulary
 from mapping.team.messages import Message, from_bytes, to_bytes
 from mapping.team.report import AgentSnapshot, AlignmentCounts, ConsistencyTerms
 from mapping.topdown import ColumnGrid, ColumnMap
@@ -188,7 +188,7 @@ def start_member_processes(count: int, device: str = "cpu", threads: int = 1, wa
     return placement
 
 
-class RemoteMember:
+class RemoteMember(StreamReader):
     """A ``TeamMember`` whose state lives in a Ray actor; every call blocks until the actor answers (the
     team's worker threads call several members at once). The stream and its read position stay here."""
 
@@ -204,22 +204,6 @@ class RemoteMember:
 
     def _call(self, method: str, *args):
         return self._ray.get(getattr(self.actor, method).remote(*args))
-
-    @property
-    def name(self) -> str:
-        return f"agent_{self.index}"
-
-    @property
-    def done(self) -> bool:
-        return self.next_frame >= len(self.stream)
-
-    def read_round(self) -> tuple[list, float]:
-        """As ``TeamMember.read_round``, on the driver (the stream is here)."""
-        import time  # noqa: PLC0415
-
-        start = time.perf_counter()
-        stop = min(self.next_frame + self.config.frames_per_round, len(self.stream))
-        return [self.stream.read(i) for i in range(self.next_frame, stop)], time.perf_counter() - start
 
     def local_round(self, read: tuple[list, float] | None = None) -> LocalReport:
         read = self.read_round() if read is None else read
