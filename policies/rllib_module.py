@@ -34,9 +34,6 @@ class BernoulliEntries(TorchDistribution):
     def _get_torch_distribution(self, logits: torch.Tensor) -> torch.distributions.Distribution:
         return torch.distributions.Independent(torch.distributions.Bernoulli(logits=logits, validate_args=False), 1)
 
-    def rsample(self, sample_shape=()):
-        raise NotImplementedError("Bernoulli entries have no reparameterised sample")
-
     @staticmethod
     def required_input_dim(space: gym.Space, **kwargs) -> int:
         return int(space.n)

@@ -41,14 +41,19 @@ class DepthCheck:
         return asdict(self)
 
 
-def depth_errors(raycaster: MeshRaycaster, frame: Frame, stride: int) -> tuple[np.ndarray, np.ndarray]:
-    """Per valid sensor pixel of ``frame`` (every ``stride``-th): the map's depth error in metres (NaN where
-    the map has no surface), and the sensor depth (for pictures)."""
-    map_depth, _ = raycaster.render_depth(np.asarray(frame.pose, np.float64), frame.intrinsics, stride=stride)
+def depth_errors(raycaster: MeshRaycaster | None, frame: Frame, stride: int) -> tuple[np.ndarray, np.ndarray]:
+    """(h, w) images of ``frame``'s every ``stride``-th pixel: the map's depth error in metres (NaN where the
+    map has no surface; no ``raycaster``: no surface anywhere) and whether the sensor has a valid depth."""
     sensor = np.asarray(frame.depth, np.float32)[::stride, ::stride]
     valid = np.isfinite(sensor) & (sensor > 0)
-    error = np.where(map_depth > 0, np.abs(map_depth - sensor), np.nan)
-    return error[valid], sensor[valid]
+    if raycaster is None:
+        return np.full(sensor.shape, np.nan, np.float32), valid
+    map_depth, _ = raycaster.render_depth(np.asarray(frame.pose, np.float64), frame.intrinsics, stride=stride)
+    return np.where(map_depth > 0, np.abs(map_depth - sensor), np.nan), valid
+
+
+def _raycaster(mesh: trimesh.Trimesh | None) -> MeshRaycaster | None:
+    return MeshRaycaster(mesh) if mesh is not None and len(mesh.faces) > 0 else None
 
 
 INVALID, RIGHT, OFF, NO_SURFACE = 0, 1, 2, 3
@@ -59,15 +64,10 @@ def depth_classes(mesh: trimesh.Trimesh | None, frame: Frame, stride: int,
                   tolerance_m: float = OFF_TOLERANCE_M) -> np.ndarray:
     """(h, w) int8 image of the pixels' classes (``RIGHT``, ``OFF``, ``NO_SURFACE``, ``INVALID``) for the
     picture of where a map is wrong."""
-    sensor = np.asarray(frame.depth, np.float32)[::stride, ::stride]
-    valid = np.isfinite(sensor) & (sensor > 0)
-    if mesh is None or len(mesh.faces) == 0:
-        map_depth = np.zeros_like(sensor)
-    else:
-        map_depth, _ = MeshRaycaster(mesh).render_depth(np.asarray(frame.pose, np.float64), frame.intrinsics, stride)
-    classes = np.full(sensor.shape, NO_SURFACE, np.int8)
-    classes[(map_depth > 0) & (np.abs(map_depth - sensor) <= tolerance_m)] = RIGHT
-    classes[(map_depth > 0) & (np.abs(map_depth - sensor) > tolerance_m)] = OFF
+    error, valid = depth_errors(_raycaster(mesh), frame, stride)
+    classes = np.full(error.shape, NO_SURFACE, np.int8)
+    hit = np.isfinite(error)
+    classes[hit] = np.where(error[hit] <= tolerance_m, RIGHT, OFF)
     classes[~valid] = INVALID
     return classes
 
@@ -81,16 +81,8 @@ def depth_check(mesh: trimesh.Trimesh | None, frames: Sequence[Frame], stride: i
         raise ValueError(f"stride must be >= 1, got {stride}")
     if not frames:
         return DepthCheck(None, None, None, 0, 0)
-    has_mesh = mesh is not None and len(mesh.faces) > 0
-    raycaster = MeshRaycaster(mesh) if has_mesh else None
-    errors = []
-    for frame in frames:
-        if raycaster is None:
-            sensor = np.asarray(frame.depth, np.float32)[::stride, ::stride]
-            errors.append(np.full(int((np.isfinite(sensor) & (sensor > 0)).sum()), np.nan))
-        else:
-            errors.append(depth_errors(raycaster, frame, stride)[0])
-    error = np.concatenate(errors) if errors else np.zeros(0)
+    raycaster = _raycaster(mesh)
+    error = np.concatenate([e[valid] for e, valid in (depth_errors(raycaster, f, stride) for f in frames)])
     if error.size == 0:
         return DepthCheck(None, None, None, 0, len(frames))
     hit = np.isfinite(error)
