@@ -81,8 +81,12 @@ class Preset:
         set other ``TeamConfig`` fields."""
         consistency = ConsistencyConfig(**{"iterations": self.consistency_iterations,
                                            "rays_per_pose": self.rays_per_pose, **(consistency or {})})
-        return TeamConfig(mapping=mapping or self.mapping, frames_per_round=self.frames_per_round,
-                          consistency=consistency, **options)
+        mapping = mapping or self.mapping
+        # floor, so that a full path's interval (frames // this) is never below keyframe_every
+        full_path_keyframes = self.frames_per_agent // mapping.keyframe_every
+        return TeamConfig(mapping=mapping, frames_per_round=self.frames_per_round, consistency=consistency,
+                          **{"min_keyframes": full_path_keyframes,
+                             "min_local_steps": full_path_keyframes * mapping.iterations_per_keyframe, **options})
 
 
 PRESETS: dict[str, Preset] = {p.name: p for p in (

@@ -498,3 +498,60 @@ def test_a_global_map_covers_the_boxes_its_peers_mapped(tiny_world):
     for member in team.members:
         bound = member.mapper.slots[GLOBAL_INSTANCE_ID].bound
         assert np.all(bound.lo <= union_lo + 1e-6) and np.all(bound.hi >= union_hi - 1e-6)
+
+
+class _ShortStream(_CountingStream):
+    """The first ``n`` frames of a stream: a recording shorter than the preset's path."""
+
+    def __init__(self, inner, n):
+        super().__init__(inner)
+        self.n = n
+
+    def __len__(self):
+        return self.n
+
+
+def test_a_short_stream_trains_the_missing_local_steps_after_its_last_frame_and_a_full_one_does_not(tiny_world):
+    full_path = 6 * 2  # tiny: 24 frames, a keyframe every 4th, 2 iterations each in _tiny_team
+    short, streams = _tiny_team(tiny_world, min_local_steps=full_path)
+    short = Team([_ShortStream(s.inner, 8) for s in streams], short.config, short.members[0].vocabulary, seed=0,
+                 device="cpu")
+    plain, _ = _tiny_team(tiny_world)
+    plain = Team([_ShortStream(s.inner, 8) for s in streams], plain.config, plain.members[0].vocabulary, seed=0,
+                 device="cpu")
+    short.round(RoundPlan.never(2))
+    plain.round(RoundPlan.never(2))
+    assert [m.mapper.steps for m in short.members] == [m.mapper.steps for m in plain.members] == [2, 2]
+    assert not short.done
+    short.round(RoundPlan.never(2))
+    plain.round(RoundPlan.never(2))
+    assert short.done and [m.steps_after_stream() for m in short.members] == [8, 8]
+    assert [m.mapper.steps for m in short.members] == [full_path, full_path]  # 2 keyframes x 2, then 8 more
+    assert [m.mapper.steps for m in plain.members] == [4, 4]
+    # a stream as long as the preset's path had all its steps: the setting changes nothing
+    whole, _ = _tiny_team(tiny_world, min_local_steps=full_path, min_keyframes=6)
+    base, _ = _tiny_team(tiny_world)
+    while not whole.done:
+        whole.round(RoundPlan.always(2))
+        base.round(RoundPlan.always(2))
+    for a, b in zip(whole.members, base.members):
+        assert a.mapper.steps == b.mapper.steps
+        for name in a.mapper.banks:
+            assert torch.equal(a.mapper.banks[name].params, b.mapper.banks[name].params)
+
+
+def test_a_short_stream_takes_keyframes_more_often_down_to_every_frame(tiny_world):
+    config = TeamConfig(mapping=replace(TeamConfig().mapping, keyframe_every=5), min_keyframes=24)
+    assert [config.keyframe_every(n) for n in (200, 120, 100, 50, 29, 3)] == [5, 5, 4, 2, 1, 1]
+    assert replace(config, min_keyframes=0).keyframe_every(29) == 5
+    team, streams = _tiny_team(tiny_world, min_keyframes=6)  # tiny: a keyframe every 4th of 24 frames
+    short = Team([_ShortStream(s.inner, 12) for s in streams], team.config, team.members[0].vocabulary, seed=0,
+                 device="cpu")
+    assert [m.mapper.config.keyframe_every for m in short.members] == [2, 2]
+    assert [m.mapper.config.keyframe_every for m in team.members] == [4, 4]
+
+
+@pytest.mark.parametrize("name", ["min_local_steps", "min_keyframes"])
+def test_minimums_must_not_be_negative(name):
+    with pytest.raises(ValueError, match=f"{name} must be >= 0"):
+        TeamConfig(**{name: -1})

@@ -14,7 +14,7 @@ delivered one gave the peer), ``receive_parameters`` (hold, align on arrival, ad
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Protocol, Sequence
 
 import numpy as np
@@ -113,7 +113,10 @@ class TeamMember(StreamReader, Outbox, Inbox, Agreement):
                  device: str = "auto"):
         self.index, self.stream, self.config, self.vocabulary = index, stream, config, vocabulary
         self.labels: dict[int, str] = {}
-        self.mapper = MappingAgent(config.mapping, is_structure=lambda iid: config.global_map
+        mapping = config.mapping
+        if (every := config.keyframe_every(len(stream))) != mapping.keyframe_every:
+            mapping = replace(mapping, keyframe_every=every)  # a short stream: keyframes more often
+        self.mapper = MappingAgent(mapping, is_structure=lambda iid: config.global_map
                                    or self.labels.get(iid) in vocabulary.structure,
                                    device=device, seed=seed, agent_index=index)
         self.fusion = OnlineFusion(config.fusion)
@@ -154,8 +157,16 @@ class TeamMember(StreamReader, Outbox, Inbox, Agreement):
         reading = PenaltyReading()
         extra = self.local_consensus(reading) if self.config.consistency.local_consensus else None
         loss = self.mapper.train(keyframes * self.config.mapping.iterations_per_keyframe, extra) if keyframes else 0.0
+        if self.done and (rest := self.steps_after_stream()) > 0:  # a short stream: the rest after its last frame
+            loss = self.mapper.train(rest, extra)
         parameter = reading.read()  # read once, not every step
         return LocalReport(indices, keyframes, loss - parameter, read_s + time.perf_counter() - start, parameter)
+
+    def steps_after_stream(self) -> int:
+        """Local iterations its keyframes give short of ``TeamConfig.min_local_steps`` (each keyframe gives
+        ``iterations_per_keyframe``): what it trains after its last frame."""
+        had = self.mapper.keyframes.seen * self.config.mapping.iterations_per_keyframe
+        return max(0, self.config.min_local_steps - had)
 
     # ---- what this agent knows ---------------------------------------------------------------------
     def snapshot(self, rounds: int, new_frames: Sequence[Frame], budget_left_bytes: float,

@@ -1,0 +1,130 @@
+"""Why are maps of real RGB-D data poor? Each cause's share, measured (issue: real data as clean as the simulator).
+
+Runs ``openmulti run --data`` on each given sequence once per variant, a variant changing one setting of the
+mapper from the preset's, and prints the depth check (median error, share of valid pixels off by > 5 cm or
+without surface, on the seen and on held-out frames) per variant, averaged over the agents. A variant's
+share of a cause is how much of the baseline's "off" it removes.
+
+Variants (``--variants`` picks some; the default runs all):
+
+| name | what changes | the cause it tests |
+|---|---|---|
+| `fixed` | a keyframe every `keyframe_every` frames, nothing after the last (before the short-stream rules) | |
+| `fixed_iters_x5` | `fixed`, 5x iterations per keyframe | training length |
+| `fixed_keyframes_all` | `fixed`, every frame a keyframe (5x keyframes and iterations) | keyframe selection + length |
+| `fixed_free_x5` | `fixed`, 5 stratified samples per ray instead of 1 | free space inside a box no sample supervises |
+| `fixed_other_half` | `fixed`, half of each instance's rays on other surfaces in its 2D box (default 20 %) | free space in the box |
+| `base` | today's defaults (`TeamConfig.min_keyframes`, `min_local_steps` from the preset) | |
+| `other_half` | `base`, half of the rays on other surfaces | free space in the box |
+
+Rows are written to ``OUT/rows.json`` as they finish (atomically); a second call with the same ``--out``
+skips the rows it has. Run: `.venv/bin/python benchmarks/study_real_causes.py --data /path/7scenes50
+/path/tum_cabinet58 [--preset fast] [--agents 2] [--holdout-every 10] [--out runs/study_real_causes]`
+(``scripts/real_data.py`` writes the two public sequences).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shutil
+import dataclasses
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from mapping.agent_config import MappingConfig
+from mapping.pipeline.records import write_json_atomic
+from openmulti_env.presets import PRESETS, Preset
+from openmulti_env.runs.run import run_data
+
+KEYS = ("depth_median_cm", "depth_off_pct", "depth_no_surface_pct", "depth_heldout_median_cm",
+        "depth_heldout_off_pct", "acc_cm", "comp_ratio")
+
+
+def _sampler(config: MappingConfig, **fields) -> MappingConfig:
+    return replace(config, sampler=replace(config.sampler, **fields))
+
+
+FIXED = {"min_keyframes": 0, "min_local_steps": 0}
+"""Before the short-stream rules: a keyframe every ``keyframe_every`` frames and nothing after the last frame."""
+
+VARIANTS: dict[str, tuple[Callable[[MappingConfig], MappingConfig], dict]] = {
+    "fixed": (lambda m: m, FIXED),
+    "fixed_iters_x5": (lambda m: replace(m, iterations_per_keyframe=5 * m.iterations_per_keyframe), FIXED),
+    "fixed_keyframes_all": (lambda m: replace(m, keyframe_every=1), FIXED),
+    "fixed_free_x5": (lambda m: _sampler(m, n_stratified=5), FIXED),
+    "fixed_other_half": (lambda m: replace(m, own_ray_fraction=0.5), FIXED),
+    "base": (lambda m: m, {}),
+    "other_half": (lambda m: replace(m, own_ray_fraction=0.5), {}),
+}
+
+
+@dataclass(frozen=True)
+class _StudyPreset(Preset):
+    """A preset whose team settings also take ``team_options``."""
+
+    team_options: dict = field(default_factory=dict)
+
+    def team_config(self, mapping=None, consistency=None, **options):
+        return super().team_config(mapping, consistency, **{**options, **self.team_options})
+
+
+def _register(preset: str, variant: str) -> str:
+    """A preset named ``study_<variant>``: ``preset`` with the variant's mapper (in this process only)."""
+    base: Preset = PRESETS[preset]
+    name = f"study_{variant}"
+    change, team_options = VARIANTS[variant]
+    fields = {f.name: getattr(base, f.name) for f in dataclasses.fields(base)}
+    PRESETS[name] = _StudyPreset(**{**fields, "name": name, "mapping": change(base.mapping)}, team_options=team_options)
+    return name
+
+
+def _mean(values: list) -> float | None:
+    finite = [v for v in values if v is not None and np.isfinite(v)]
+    return float(np.mean(finite)) if finite else None
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--data", nargs="+", required=True, help="sequence folders (NICE-SLAM layout or any --data)")
+    parser.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=list(VARIANTS))
+    parser.add_argument("--preset", default="fast")
+    parser.add_argument("--agents", type=int, default=2)
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--holdout-every", type=int, default=10)
+    parser.add_argument("--threads", type=int, default=1)
+    parser.add_argument("--out", default="runs/study_real_causes")
+    args = parser.parse_args()
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    rows_path = out / "rows.json"
+    rows = json.loads(rows_path.read_text()) if rows_path.exists() else {}
+    for data in args.data:
+        for variant in args.variants:
+            key = f"{Path(data).name}/{variant}"
+            if key in rows:
+                continue
+            run_dir = out / key.replace("/", "_")
+            shutil.rmtree(run_dir, ignore_errors=True)
+            metrics = run_data(data, args.agents, "always", _register(args.preset, variant), args.seed, run_dir,
+                               device="cpu", threads=args.threads, holdout_every=args.holdout_every)
+            rows[key] = {k: _mean([a.get(k) for a in metrics["agents"].values()]) for k in KEYS}
+            rows[key]["wall_s"] = metrics["wall_s"]
+            rows[key]["load"] = os.getloadavg()[0]
+            write_json_atomic(rows_path, rows)
+    print(f"\npreset {args.preset}, {args.agents} agents, policy always, every {args.holdout_every}th frame held out; "
+          "mean over agents")
+    print(f"{'sequence/variant':<32} {'err cm':>7} {'off %':>6} {'none %':>7} {'held err':>9} {'held off':>9} "
+          f"{'acc cm':>7} {'CR %':>6}")
+    for key, row in rows.items():
+        cells = [row.get(k) for k in KEYS]
+        print(f"{key:<32} " + " ".join(f"{'-' if c is None else f'{c:.2f}':>{w}}"
+                                       for c, w in zip(cells, (7, 6, 7, 9, 9, 7, 6))))
+
+
+if __name__ == "__main__":
+    main()
