@@ -16,8 +16,15 @@ Variants (``--variants`` picks some; the default runs all):
 | `fixed_other_half` | `fixed`, half of each instance's rays on other surfaces in its 2D box (default 20 %) | free space in the box |
 | `base` | today's defaults (`TeamConfig.min_keyframes`, `min_local_steps` from the preset) | |
 | `other_half` | `base`, half of the rays on other surfaces | free space in the box |
+| `crossing` | `base`, free-space rays from every keyframe ray that crosses the 3D box | free space in the box |
+| `crossing_half` | `crossing`, half of the rays free-space ones | free space in the box |
+| `kinect_noise` | (``--scene``) the simulator's depth with Kinect v1's noise, 1.5 mm x depth^2 | depth noise at range |
+| `kinect_holes` | (``--scene``) 12 % of the depth pixels dropped at random | depth holes |
+| `kinect` | (``--scene``) both | |
+| `kinect_crossing_half` | `kinect` with `crossing_half`'s mapper | |
 
-Rows are written to ``OUT/rows.json`` as they finish (atomically); a second call with the same ``--out``
+``--scene`` runs the variants on simulated scenes instead (the sensor variants only run there: the
+controlled set). Rows are written to ``OUT/rows.json`` as they finish (atomically); a second call with the same ``--out``
 skips the rows it has. Run: `.venv/bin/python benchmarks/study_real_causes.py --data /path/7scenes50
 /path/tum_cabinet58 [--preset fast] [--agents 2] [--holdout-every 10] [--out runs/study_real_causes]`
 (``scripts/real_data.py`` writes the two public sequences).
@@ -39,7 +46,7 @@ import numpy as np
 from mapping.agent_config import MappingConfig
 from mapping.pipeline.records import write_json_atomic
 from openmulti_env.presets import PRESETS, Preset
-from openmulti_env.runs.run import run_data
+from openmulti_env.runs.run import run, run_data
 
 KEYS = ("depth_median_cm", "depth_off_pct", "depth_no_surface_pct", "depth_heldout_median_cm",
         "depth_heldout_off_pct", "acc_cm", "comp_ratio")
@@ -51,35 +58,63 @@ def _sampler(config: MappingConfig, **fields) -> MappingConfig:
 
 FIXED = {"min_keyframes": 0, "min_local_steps": 0}
 """Before the short-stream rules: a keyframe every ``keyframe_every`` frames and nothing after the last frame."""
+KINECT_NOISE = {"depth_noise_std_m": 0.0015}
+"""Kinect v1's depth noise, about 1.5 mm at 1 m growing with the square of depth (Khoshelham and Elberink 2012)."""
+KINECT_HOLES = {"missing_depth_prob": 0.12}
+"""The share of pixels without depth in the 7-Scenes sequence (12 %), dropped at random."""
 
-VARIANTS: dict[str, tuple[Callable[[MappingConfig], MappingConfig], dict]] = {
-    "fixed": (lambda m: m, FIXED),
-    "fixed_iters_x5": (lambda m: replace(m, iterations_per_keyframe=5 * m.iterations_per_keyframe), FIXED),
-    "fixed_keyframes_all": (lambda m: replace(m, keyframe_every=1), FIXED),
-    "fixed_free_x5": (lambda m: _sampler(m, n_stratified=5), FIXED),
-    "fixed_other_half": (lambda m: replace(m, own_ray_fraction=0.5), FIXED),
-    "base": (lambda m: m, {}),
-    "other_half": (lambda m: replace(m, own_ray_fraction=0.5), {}),
+
+@dataclass(frozen=True)
+class Variant:
+    """One change from the preset: its mapper, its team settings, the simulator's sensor."""
+
+    mapping: Callable[[MappingConfig], MappingConfig] = lambda m: m
+    team: dict = field(default_factory=dict)
+    sensor: dict = field(default_factory=dict)
+    """``SensorConfig`` fields (simulated scenes only)."""
+
+
+VARIANTS: dict[str, Variant] = {
+    "fixed": Variant(team=FIXED),
+    "fixed_iters_x5": Variant(lambda m: replace(m, iterations_per_keyframe=5 * m.iterations_per_keyframe), FIXED),
+    "fixed_keyframes_all": Variant(lambda m: replace(m, keyframe_every=1), FIXED),
+    "fixed_free_x5": Variant(lambda m: _sampler(m, n_stratified=5), FIXED),
+    "fixed_other_half": Variant(lambda m: replace(m, own_ray_fraction=0.5), FIXED),
+    "base": Variant(),
+    "other_half": Variant(lambda m: replace(m, own_ray_fraction=0.5)),
+    "crossing": Variant(lambda m: replace(m, free_space_rays="crossing")),
+    "crossing_half": Variant(lambda m: replace(m, free_space_rays="crossing", own_ray_fraction=0.5)),
+    "kinect_noise": Variant(sensor=KINECT_NOISE),
+    "kinect_holes": Variant(sensor=KINECT_HOLES),
+    "kinect": Variant(sensor={**KINECT_NOISE, **KINECT_HOLES}),
+    "kinect_crossing_half": Variant(lambda m: replace(m, free_space_rays="crossing", own_ray_fraction=0.5),
+                                    sensor={**KINECT_NOISE, **KINECT_HOLES}),
 }
 
 
 @dataclass(frozen=True)
 class _StudyPreset(Preset):
-    """A preset whose team settings also take ``team_options``."""
+    """A preset whose team settings also take ``team_options`` and whose sensor takes ``sensor``."""
 
     team_options: dict = field(default_factory=dict)
+    sensor: dict = field(default_factory=dict)
 
     def team_config(self, mapping=None, consistency=None, **options):
         return super().team_config(mapping, consistency, **{**options, **self.team_options})
 
+    def world_config(self, num_agents: int):
+        config = super().world_config(num_agents)
+        return replace(config, sensor=replace(config.sensor, **self.sensor))
+
 
 def _register(preset: str, variant: str) -> str:
-    """A preset named ``study_<variant>``: ``preset`` with the variant's mapper (in this process only)."""
+    """A preset named ``study_<variant>``: ``preset`` with the variant's changes (in this process only)."""
     base: Preset = PRESETS[preset]
     name = f"study_{variant}"
-    change, team_options = VARIANTS[variant]
+    change = VARIANTS[variant]
     fields = {f.name: getattr(base, f.name) for f in dataclasses.fields(base)}
-    PRESETS[name] = _StudyPreset(**{**fields, "name": name, "mapping": change(base.mapping)}, team_options=team_options)
+    PRESETS[name] = _StudyPreset(**{**fields, "name": name, "mapping": change.mapping(base.mapping)},
+                                 team_options=change.team, sensor=change.sensor)
     return name
 
 
@@ -90,7 +125,8 @@ def _mean(values: list) -> float | None:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--data", nargs="+", required=True, help="sequence folders (NICE-SLAM layout or any --data)")
+    parser.add_argument("--data", nargs="+", default=[], help="sequence folders (NICE-SLAM layout or any --data)")
+    parser.add_argument("--scene", nargs="+", default=[], help="simulated scenes (the sensor variants need one)")
     parser.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=list(VARIANTS))
     parser.add_argument("--preset", default="fast")
     parser.add_argument("--agents", type=int, default=2)
@@ -103,15 +139,21 @@ def main() -> None:
     out.mkdir(parents=True, exist_ok=True)
     rows_path = out / "rows.json"
     rows = json.loads(rows_path.read_text()) if rows_path.exists() else {}
-    for data in args.data:
+    sources = [(Path(d).name, d, None) for d in args.data] + [(scene, None, scene) for scene in args.scene]
+    for name, data, scene in sources:
         for variant in args.variants:
-            key = f"{Path(data).name}/{variant}"
+            if VARIANTS[variant].sensor and scene is None:
+                continue  # a recording's sensor is what it is
+            key = f"{name}/{variant}" + ("" if args.preset == "fast" else f"/{args.preset}") + \
+                (f"/seed{args.seed}" if args.seed else "")
             if key in rows:
                 continue
             run_dir = out / key.replace("/", "_")
             shutil.rmtree(run_dir, ignore_errors=True)
-            metrics = run_data(data, args.agents, "always", _register(args.preset, variant), args.seed, run_dir,
-                               device="cpu", threads=args.threads, holdout_every=args.holdout_every)
+            options = dict(device="cpu", threads=args.threads, holdout_every=args.holdout_every)
+            preset = _register(args.preset, variant)
+            metrics = (run_data(data, args.agents, "always", preset, args.seed, run_dir, **options) if data else
+                       run(scene, args.agents, "always", preset, args.seed, run_dir, **options))
             rows[key] = {k: _mean([a.get(k) for a in metrics["agents"].values()]) for k in KEYS}
             rows[key]["wall_s"] = metrics["wall_s"]
             rows[key]["load"] = os.getloadavg()[0]

@@ -217,7 +217,11 @@ class MappingAgent:
                 continue
             rows = torch.as_tensor([self.slots[i].row for i in ids], device=self.device)
             n_rays = self.config.rays_per_structure if name == "structure" else self.config.rays_per_object
-            rays = self.keyframes.sample(ids, n_rays, self.config.own_ray_fraction, self.rng)  # (N, R)
+            boxes = None
+            if self.config.free_space_rays == "crossing":
+                boxes = (bank.bound_min[rows].cpu().numpy().astype(np.float64),
+                         bank.bound_max[rows].cpu().numpy().astype(np.float64))
+            rays = self.keyframes.sample(ids, n_rays, self.config.own_ray_fraction, self.rng, boxes)  # (N, R)
             bundle = RayBundle(rays.origins, rays.directions)
             lo, hi = bank.bound_min[rows][:, None], bank.bound_max[rows][:, None]
             t_near, t_far = ray_aabb(rays.origins, rays.directions, lo, hi)  # (N, R): the instance's box

@@ -9,6 +9,10 @@ from mapping.losses import DataLossWeights
 from mapping.render import SamplerConfig
 
 
+FREE_SPACE_RAYS = ("box2d", "crossing")
+"""Where an instance's free-space rays come from (``MappingConfig.free_space_rays``)."""
+
+
 @dataclass
 class MappingConfig:
     """How one agent maps (vMAP's values unless said otherwise)."""
@@ -24,6 +28,10 @@ class MappingConfig:
     the 128-wide network that alone is ~30 GFLOP a step, too slow for a 2-core CPU)."""
     own_ray_fraction: float = 0.8
     """Share of an instance's rays on its own pixels; the rest on other surfaces in its 2D box."""
+    free_space_rays: str = "box2d"
+    """Where an instance's free-space rays (the ``1 - own_ray_fraction`` share) come from: ``box2d``, other
+    surfaces inside the 2D box of its mask in keyframes that saw it (vMAP), or ``crossing``, any held
+    keyframe's rays that enter its 3D box in front of their surface (``KeyframeBuffer.crossing_rays``)."""
     sampler: SamplerConfig = field(default_factory=SamplerConfig)
     """Samples per ray (vMAP: 1 stratified + 9 around the surface), inside each instance's box."""
     loss_weights: DataLossWeights = field(default_factory=DataLossWeights)
@@ -55,3 +63,7 @@ class MappingConfig:
     global_frame: tuple[float, float, float, float] | None = None
     """(centre x, y, z, half-size) given to every new instance instead of a frame from its first box:
     the scene box of a global map (``mapping.team.global_map``), fixed so that it is never refit."""
+
+    def __post_init__(self) -> None:
+        if self.free_space_rays not in FREE_SPACE_RAYS:
+            raise ValueError(f"unknown free_space_rays {self.free_space_rays!r}; choose one of {FREE_SPACE_RAYS}")

@@ -83,6 +83,11 @@ class _InstancePixels:
             self._packed = (slots, *parts)
         return self._packed
 
+    def own_keys(self, image_size: int) -> np.ndarray:
+        """Sorted ``slot * image_size + pixel`` of every own pixel (to test candidates for membership)."""
+        slots, own_off, own_size, own_px = self.packed()[:4]
+        return np.repeat(slots, own_size) * image_size + own_px  # slots ascending, pixels sorted within
+
 
 def _draw(offsets: np.ndarray, sizes: np.ndarray, pixels: np.ndarray, entries: np.ndarray,
           generator: np.random.Generator) -> np.ndarray:
@@ -201,13 +206,16 @@ class KeyframeBuffer:
             if source in ids:
                 ids[:] = sorted(set(ids) - {source} | {target})
 
-    def sample(self, instance_ids: list[int], n_rays: int, own_fraction: float, generator: np.random.Generator
-               ) -> InstanceRays:
+    def sample(self, instance_ids: list[int], n_rays: int, own_fraction: float, generator: np.random.Generator,
+               boxes: tuple[np.ndarray, np.ndarray] | None = None) -> InstanceRays:
         """``n_rays`` rays per instance from random keyframes that saw it: ``own_fraction`` of them on the
-        instance, the rest on other surfaces inside its 2D box."""
+        instance, the rest on other surfaces inside its 2D box. With ``boxes`` ((N, 3) lo and hi of the
+        instances' 3D boxes) the rest are rays of any held keyframe that cross the 3D box before their
+        surface (``crossing_rays``), where there are enough of them: free space wherever a ray went."""
         n_own = int(round(n_rays * own_fraction))
+        crossing = None if boxes is None else self.crossing_rays(instance_ids, *boxes, n_rays - n_own, generator)
         kf_all, px_all, own_all = [], [], []
-        for iid in instance_ids:
+        for i, iid in enumerate(instance_ids):
             if not self.has_pixels(iid):
                 raise KeyError(f"instance {iid} has no pixels in the held keyframes (adopted or evicted); "
                                "check has_pixels before sampling")
@@ -217,7 +225,13 @@ class KeyframeBuffer:
             other_draw = _draw(oth_off, oth_size, oth_px, picks, generator)
             own = (np.arange(n_rays) < n_own) | (other_draw < 0)  # every kept slot has own pixels
             px = np.where(own, own_draw, other_draw)
-            kf_all.append(slots[picks])
+            kf = slots[picks]
+            if crossing is not None:
+                c_kf, c_px, c_ok = (c[i] for c in crossing)
+                kf[n_own:] = np.where(c_ok, c_kf, kf[n_own:])
+                px[n_own:] = np.where(c_ok, c_px, px[n_own:])
+                own[n_own:] &= ~c_ok
+            kf_all.append(kf)
             px_all.append(px)
             own_all.append(own)
         kf = torch.as_tensor(np.stack(kf_all), device=self.device)  # (N, R)
@@ -232,6 +246,74 @@ class KeyframeBuffer:
             own=torch.as_tensor(np.stack(own_all), device=self.device),
         )
 
+    def camera(self) -> tuple[int, int, float, float, float, float]:
+        """(height, width, fx, fy, cx, cy) of the held keyframes, read back from the camera rays."""
+        cam = self.rays_cam  # (H*W, 3): ((u - cx) / fx, (v - cy) / fy, 1), row-major
+        w = int((cam[:, 1] == cam[0, 1]).sum())
+        h = cam.shape[0] // w
+        fx = 1.0 / float(cam[1, 0] - cam[0, 0]) if w > 1 else 1.0
+        fy = 1.0 / float(cam[w, 1] - cam[0, 1]) if h > 1 else 1.0
+        return h, w, fx, fy, -float(cam[0, 0]) * fx, -float(cam[0, 1]) * fy
+
+    @torch.no_grad()
+    def crossing_rays(self, instance_ids: list[int], lo: np.ndarray, hi: np.ndarray, n_rays: int,
+                      generator: np.random.Generator, candidates: int = 4) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Per instance, ``n_rays`` pixels of held keyframes whose rays enter its 3D box (``lo``, ``hi``:
+        (N, 3)) in front of the surface they observed and are not its own pixels: each says the box is
+        empty up to that surface, wherever the instance was segmented or not (vMAP only uses the pixels
+        of the 2D box around the instance's mask, so a box seen without its mask keeps whatever it
+        invents there). Candidates are drawn in the box's projection into each keyframe.
+
+        Returns:
+            (N, n_rays) keyframe slots, pixels, and whether the entry holds such a ray (too few found: False).
+        """
+        n, k = len(instance_ids), len(self.slot_frame)
+        out = (np.zeros((n, n_rays), np.int64), np.zeros((n, n_rays), np.int64), np.zeros((n, n_rays), bool))
+        if n == 0 or k == 0 or n_rays == 0:
+            return out
+        h, w, fx, fy, cx, cy = self.camera()
+        poses = self.poses[:k].cpu().numpy().astype(np.float64)
+        corners = np.stack(np.meshgrid([0, 1], [0, 1], [0, 1], indexing="ij"), -1).reshape(8, 3)
+        corners = np.where(corners[None], hi[:, None], lo[:, None])  # (N, 8, 3)
+        local = np.einsum("nkcj,kji->nkci", corners[:, None] - poses[None, :, None, :3, 3], poses[:, :3, :3])
+        z = local[..., 2]
+        front = z > 1e-2
+        zs = np.where(front, z, 1.0)
+        u, v = local[..., 0] / zs * fx + cx, local[..., 1] / zs * fy + cy
+        big = np.inf
+        u0 = np.where(front.all(-1), np.where(front, u, big).min(-1), 0.0).clip(0, w - 1)
+        u1 = np.where(front.all(-1), np.where(front, u, -big).max(-1), w - 1.0).clip(0, w - 1)
+        v0 = np.where(front.all(-1), np.where(front, v, big).min(-1), 0.0).clip(0, h - 1)
+        v1 = np.where(front.all(-1), np.where(front, v, -big).max(-1), h - 1.0).clip(0, h - 1)
+        u0, u1, v0, v1 = np.ceil(u0), np.floor(u1), np.ceil(v0), np.floor(v1)
+        visible = front.any(-1) & (u0 <= u1) & (v0 <= v1)  # (N, K)
+        c = candidates * n_rays
+        weights = visible / np.maximum(visible.sum(-1, keepdims=True), 1)
+        slot = (weights.cumsum(-1)[:, None, :] < generator.random((n, c, 1))).sum(-1).clip(0, k - 1)  # (N, C)
+        rows = np.arange(n)[:, None]
+        uu = u0[rows, slot] + np.floor(generator.random((n, c)) * (u1 - u0 + 1)[rows, slot])
+        vv = v0[rows, slot] + np.floor(generator.random((n, c)) * (v1 - v0 + 1)[rows, slot])
+        px = (np.minimum(vv, h - 1) * w + np.minimum(uu, w - 1)).astype(np.int64)
+        slot_t, px_t = torch.as_tensor(slot, device=self.device), torch.as_tensor(px, device=self.device)
+        depth = self.depth[slot_t, px_t].cpu().numpy().astype(np.float64)
+        direction = np.einsum("ncij,ncj->nci", poses[slot, :3, :3], self.rays_cam[px_t].cpu().numpy())
+        origin = poses[slot, :3, 3]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            inv = 1.0 / np.where(np.abs(direction) < 1e-12, 1e-12, direction)
+            t0, t1 = (lo[:, None] - origin) * inv, (hi[:, None] - origin) * inv
+        t_near = np.maximum(np.minimum(t0, t1).max(-1), 0.0)
+        t_far = np.maximum(t0, t1).min(-1)
+        ok = visible[rows, slot] & (depth > 0) & (t_far > t_near) & (t_near < depth)
+        for i, iid in enumerate(instance_ids):  # never the instance's own pixels
+            entry = self.index.get(iid)
+            if entry is not None and ok[i].any():
+                keys = entry.own_keys(h * w)
+                cand = slot[i] * (h * w) + px[i]
+                at = np.searchsorted(keys, cand).clip(0, max(len(keys) - 1, 0))
+                ok[i] &= ~((len(keys) > 0) & (keys[at] == cand) if len(keys) else np.zeros(c, bool))
+        first = np.argsort(~ok, axis=1, kind="stable")[:, :n_rays]  # the valid candidates first
+        return slot[rows, first], px[rows, first], ok[rows, first]
+
     @torch.no_grad()
     def observes(self, points: torch.Tensor, tolerance_m: float = 0.05) -> torch.Tensor:
         """Which (M, 3) world points some held keyframe saw: the point projects into the image in front of
@@ -241,11 +323,7 @@ class KeyframeBuffer:
         seen = torch.zeros(points.shape[0], dtype=torch.bool, device=points.device)
         if n == 0 or self.rays_cam is None or points.shape[0] == 0:
             return seen
-        cam = self.rays_cam  # (H*W, 3): ((u - cx) / fx, (v - cy) / fy, 1), row-major
-        w = int((cam[:, 1] == cam[0, 1]).sum())
-        h = cam.shape[0] // w
-        fx, fy = 1.0 / float(cam[1, 0] - cam[0, 0]), 1.0 / float(cam[w, 1] - cam[0, 1]) if h > 1 else 1.0
-        cx, cy = -float(cam[0, 0]) * fx, -float(cam[0, 1]) * fy
+        h, w, fx, fy, cx, cy = self.camera()
         pts = points.to(self.device, torch.float32)
         for slot in range(n):
             pose = self.poses[slot]

@@ -223,3 +223,29 @@ def test_per_instance_metrics_and_as_dict():
     }
     assert d["acc_cm"] == round(metrics[1].acc_cm, 4)
     json.dumps(d, allow_nan=False)
+
+
+def test_surface_classes_split_right_invented_and_missed_by_the_completion_threshold():
+    from mapping.evaluate.geometry import surface_classes
+
+    gt = square(2.0)  # x, y in [0, 2] at z = 0
+    half = square(2.0, width_m=1.0)  # the map has half the floor (x <= 1) ...
+    floater = square(0.5, z_m=0.5)  # ... and a slab half a metre above it
+    rec = trimesh.util.concatenate([half, floater])
+    classes = surface_classes(rec, gt, count=20_000)
+    assert np.allclose(classes.right[:, 2], 0.0) and (classes.right[:, 0] <= 1.0 + 1e-6).all()
+    assert np.allclose(classes.invented[:, 2], 0.5)
+    assert (classes.missed[:, 0] > 1.0 + COMPLETION_RATIO_THRESHOLD_M - 0.01).all()  # sampling: about 1 cm
+    # by area: the slab is 0.25 of the map's 2.25 m^2, the missed strip about 1.9 of 4 m^2 of ground truth
+    assert len(classes.invented) / 20_000 == pytest.approx(0.25 / 2.25, abs=0.02)
+    assert len(classes.missed) / 20_000 == pytest.approx(0.475, abs=0.02)
+    empty = surface_classes(None, gt, count=1000)
+    assert len(empty.right) == len(empty.invented) == 0 and len(empty.missed) == 1000
+
+
+def test_the_top_down_picture_draws_every_agent_even_without_a_mesh(tmp_path):
+    from mapping.pipeline.plots import save_reconstruction_views
+
+    gt = trimesh.util.concatenate([square(2.0), square(2.0, z_m=1.0)])  # a floor and a "ceiling"
+    path = save_reconstruction_views(tmp_path / "top.png", gt, [square(2.0, width_m=1.0), None], "TSDF reference")
+    assert path.stat().st_size > 10_000

@@ -70,3 +70,25 @@ def test_observes_tells_seen_surface_from_blind_zones():
     again = KeyframeBuffer(capacity=4)
     again.restore(state)
     assert again.observes(points).tolist() == [True, True, False, False, False, False]
+
+
+def test_crossing_rays_enter_the_box_in_front_of_their_surface_and_are_never_its_own_pixels():
+    """A wall at 2 m seen with instance 1 on its left half; instance 2's box floats at 1.0-1.5 m on the
+    right, never segmented: its free-space rays come from wherever its projection lies."""
+    buf = KeyframeBuffer(capacity=4, policy="window")
+    frame, inst = _frame(0, 1)
+    inst[:] = 0
+    inst[:, :16] = 1
+    buf.add(frame, inst)
+    lo = np.array([[0.0, -0.3, 1.0], [-0.5, -0.5, 1.8]])  # 2: right half, in front; 1: its own wall slab
+    hi = np.array([[0.4, 0.3, 1.5], [0.5, 0.5, 2.2]])
+    slots, px, ok = buf.crossing_rays([2, 1], lo, hi, 30, np.random.default_rng(0))
+    assert ok[0].all()  # the floating box is crossed by many rays in front of the wall
+    u, v = px[0] % 32, px[0] // 32
+    assert (u >= 15).all() and (u <= 15.5 + 0.4 / 1.0 * 20 + 1).all() and (np.abs(v - 11.5) <= 0.3 / 1.0 * 20 + 1).all()
+    # instance 1's box holds its own wall: rays there end on its own pixels (never free space); rays on
+    # the right half enter its box in front of the other surface
+    assert ok[1].any() and ((px[1][ok[1]] % 32) >= 16).all()
+    rays = buf.sample([1], 40, 0.5, np.random.default_rng(1), boxes=(lo[1:], hi[1:]))
+    assert rays.own[0, :20].all() and not rays.own[0, 20:].any()
+    assert (rays.depth[0, 20:] == 2.0).all()  # free-space rays end on the wall behind the box's front

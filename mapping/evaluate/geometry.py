@@ -230,3 +230,29 @@ def evaluate_per_instance(
         )
         for instance_id in sorted(gt_meshes)
     }
+
+
+@dataclass
+class SurfaceClasses:
+    """Where a map is right, what it misses and what it invents, as points (each (n, 3))."""
+
+    right: np.ndarray
+    """Map surface within the threshold of the ground truth."""
+    invented: np.ndarray
+    """Map surface farther than the threshold from any ground truth (accuracy's failures)."""
+    missed: np.ndarray
+    """Ground-truth surface farther than the threshold from the map (completion ratio's failures)."""
+
+
+def surface_classes(rec_mesh: trimesh.Trimesh | None, gt_mesh: trimesh.Trimesh, count: int = 100_000,
+                    seed: int = 0, threshold_m: float = COMPLETION_RATIO_THRESHOLD_M) -> SurfaceClasses:
+    """Split ``count`` points of each mesh into right / invented (the map's) and missed (the ground truth's),
+    with the completion ratio's threshold: the picture of what accuracy and completion ratio measure."""
+    gt_points = sample_points(gt_mesh, count, seed=seed + 1)
+    if _is_empty(rec_mesh):
+        return SurfaceClasses(np.zeros((0, 3)), np.zeros((0, 3)), gt_points)
+    rec_points = sample_points(rec_mesh, count, seed=seed)
+    to_gt, _ = cKDTree(gt_points).query(rec_points, k=1, workers=-1)
+    to_rec, _ = cKDTree(rec_points).query(gt_points, k=1, workers=-1)
+    return SurfaceClasses(rec_points[to_gt <= threshold_m], rec_points[to_gt > threshold_m],
+                          gt_points[to_rec > threshold_m])

@@ -24,24 +24,48 @@ def save_figure(fig, path: str | Path, title: str = "", dpi: int = 100) -> Path:
     return path
 
 
-def save_reconstruction_views(path: str | Path, gt_mesh, agent_meshes: list) -> Path:
-    """Ground truth beside each agent's reconstruction, seen from above (vertices coloured by height)."""
+SURFACE_CLASS_COLOURS = {"missed": "tab:blue", "right": "tab:green", "invented": "tab:red"}
+
+
+def save_reconstruction_views(path: str | Path, gt_mesh, agent_meshes: list, reference: str = "ground truth",
+                              seed: int = 0) -> Path:
+    """Seen from above: the ground truth coloured by height, then per agent where its map (as scored) is
+    right, what it misses and what it invents, against ``gt_mesh`` within the completion ratio's 5 cm.
+    ``reference`` names what ``gt_mesh`` is (ground truth, or a reference fused from the observations)."""
+    from mapping.evaluate.geometry import COMPLETION_RATIO_THRESHOLD_M, sample_points, surface_classes  # noqa: PLC0415
+
     n = 1 + len(agent_meshes)
-    fig, axes = plt.subplots(1, n, figsize=(4.2 * n, 4.2), squeeze=False)
+    fig, axes = plt.subplots(1, n, figsize=(4.2 * n, 5.0), squeeze=False)
     lo, hi = gt_mesh.bounds
-    for ax, (title, mesh) in zip(axes[0], [("ground truth (observable)", gt_mesh)]
-                                 + [(f"agent_{a}", m) for a, m in enumerate(agent_meshes)]):
-        if mesh is not None and len(mesh.vertices):
-            v = np.asarray(mesh.vertices)
-            v = v[v[:, 2] < hi[2] - 0.15]  # leave the ceiling out
-            order = np.argsort(v[:, 2])
-            ax.scatter(v[order, 0], v[order, 1], c=v[order, 2], s=0.2, cmap="viridis", vmin=lo[2], vmax=hi[2])
-        ax.set_title(title)
+    below_ceiling = hi[2] - 0.15  # leave the ceiling out: it hides the room
+
+    def top_down(ax, points, by_height: bool = False, **style):
+        points = points[points[:, 2] < below_ceiling]
+        points = points[np.argsort(points[:, 2])]  # the highest surface on top
+        if by_height:
+            style.update(c=points[:, 2], cmap="viridis", vmin=lo[2], vmax=hi[2])
+        return ax.scatter(points[:, 0], points[:, 1], s=0.2, rasterized=True, **style)
+
+    shown = top_down(axes[0, 0], sample_points(gt_mesh, 100_000, seed=seed + 1), by_height=True)
+    fig.colorbar(shown, ax=axes[0, 0], orientation="horizontal", fraction=0.05, pad=0.02, label="height [m]")
+    axes[0, 0].set_title(f"{reference}, from above (no ceiling)")
+    for a, (ax, mesh) in enumerate(zip(axes[0, 1:], agent_meshes)):
+        classes = surface_classes(mesh, gt_mesh, seed=seed)
+        for name in ("missed", "right", "invented"):  # what the map invents on top
+            top_down(ax, getattr(classes, name), color=SURFACE_CLASS_COLOURS[name])
+        ax.set_title(f"agent_{a}")
+    for ax in axes[0]:
         ax.set_xlim(lo[0] - 0.1, hi[0] + 0.1)
         ax.set_ylim(lo[1] - 0.1, hi[1] + 0.1)
         ax.set_aspect("equal")
         ax.set_xticks([])
         ax.set_yticks([])
+    cm = round(COMPLETION_RATIO_THRESHOLD_M * 100)
+    labels = {"right": f"map within {cm} cm of the {reference}", "missed": f"{reference} the map misses (> {cm} cm)",
+              "invented": f"map surface the {reference} lacks (> {cm} cm)"}
+    handles = [plt.Line2D([], [], ls="", marker="o", color=SURFACE_CLASS_COLOURS[k], label=v) for k, v in labels.items()]
+    if agent_meshes:
+        axes[0, 1].legend(handles=handles, loc="upper left", bbox_to_anchor=(0.0, -0.02), frameon=False, fontsize=8)
     return save_figure(fig, path)
 
 

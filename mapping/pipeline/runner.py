@@ -176,7 +176,8 @@ def evaluate_team(source: Source, record: SourceRecord, gt: GroundTruth, team: T
     if config.plots:
         from mapping.pipeline.plots import save_reconstruction_views, save_semantic_classes  # noqa: PLC0415
 
-        save_reconstruction_views(out / "plots" / "reconstruction_top_down.png", gt.mesh, [m.mesh for m in maps])
+        save_reconstruction_views(out / "plots" / "reconstruction_top_down.png", gt.mesh, [m.scored for m in maps],
+                                  gt.reference_note, seed)
         if union is not None:
             save_semantic_classes(out / "plots" / "semantic_per_class.png", union, f"{source.name}: all agents' maps")
     return {"agents": per_agent, "mean": mean_metrics(per_agent),

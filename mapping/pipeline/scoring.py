@@ -57,16 +57,27 @@ class MemberMap:
     mesh: trimesh.Trimesh
     ids: np.ndarray
     labels: dict[int, str]
+    scored: trimesh.Trimesh | None = None
+    """The mesh culled as the headline figures score it (free space's viewpoints); None without a mesh."""
 
 
-def score_three_ways(mesh: trimesh.Trimesh | None, gt: trimesh.Trimesh, viewpoints: np.ndarray,
-                     views: CameraViews | None, seed: int) -> dict[str, float | None]:
-    """acc / comp / comp ratio of ``mesh`` under each culling (``views=None`` skips ``nice_slam``)."""
+def cull_three_ways(mesh: trimesh.Trimesh | None, viewpoints: np.ndarray,
+                    views: CameraViews | None) -> dict[str, trimesh.Trimesh | None]:
+    """``mesh`` under each culling (``views=None`` skips ``nice_slam``); None values without a mesh."""
     has = mesh is not None and len(mesh.faces) > 0
     meshes = {"free_space": cull_to_viewpoints(mesh, viewpoints) if has else None,
               "unculled": mesh if has else None}
     if views is not None:
         meshes["nice_slam"] = cull_to_frustums(mesh, views.poses, views.intrinsics, views.depths) if has else None
+    return meshes
+
+
+def score_three_ways(mesh: trimesh.Trimesh | None, gt: trimesh.Trimesh, viewpoints: np.ndarray,
+                     views: CameraViews | None, seed: int,
+                     meshes: dict[str, trimesh.Trimesh | None] | None = None) -> dict[str, float | None]:
+    """acc / comp / comp ratio of ``mesh`` under each culling (``views=None`` skips ``nice_slam``;
+    ``meshes``: ``cull_three_ways``'s result when already made)."""
+    meshes = cull_three_ways(mesh, viewpoints, views) if meshes is None else meshes
     out: dict[str, float | None] = {}
     for name, culled in meshes.items():
         m = evaluate_mesh(culled if culled is not None and len(culled.faces) else None, gt, seed=seed)
@@ -93,7 +104,8 @@ def score_member(member: TeamMember, gt: GroundTruth, views: CameraViews | None,
         export_scene_mesh(out / "meshes" / f"{name}.ply", mesh, ids)
     labelled(book, labels, caption).save(out / "codebook", name)
     semantic = None if gt.semantic is None else semantic_metrics(*gt.semantic, np.asarray(mesh.vertices), ids, labels)
-    scores = score_three_ways(mesh if has_mesh else None, gt.mesh, gt.viewpoints, views, seed)
+    culled = cull_three_ways(mesh if has_mesh else None, gt.viewpoints, views)
+    scores = score_three_ways(mesh if has_mesh else None, gt.mesh, gt.viewpoints, views, seed, culled)
     adopted = sum(1 for i in mapper.live_ids() if not mapper.keyframes.has_pixels(i))
     check = depth_check(mesh if has_mesh else None, frames, stride=DEPTH_CHECK_STRIDE)
     scores.update(depth_median_cm=check.median_cm, depth_off_pct=check.off_pct,
@@ -104,7 +116,7 @@ def score_member(member: TeamMember, gt: GroundTruth, views: CameraViews | None,
     return ({**scores, "f_miou": None if semantic is None else semantic.f_miou,
              "f_macc": None if semantic is None else semantic.f_macc,
              "instances": len(mapper.live_ids()), "instances_without_own_pixels": adopted},
-            MemberMap(member.index, mesh, ids, labels))
+            MemberMap(member.index, mesh, ids, labels, culled["free_space"]))
 
 
 def team_semantics(maps: list[MemberMap], semantic_gt: tuple[np.ndarray, np.ndarray] | None,

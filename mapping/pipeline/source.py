@@ -44,6 +44,11 @@ class GroundTruth:
     culling_note: str
     """One sentence on how the maps are culled (for ``metrics.json``'s notes)."""
 
+    @property
+    def reference_note(self) -> str:
+        """What ``mesh`` is, in a few words (pictures' legends)."""
+        return "TSDF reference" if self.file_name == "gt_reference.ply" else "ground truth"
+
 
 class Source(Protocol):
     """Frames, vocabulary and ground truth of one run (see the module docstring)."""
