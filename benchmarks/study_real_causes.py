@@ -18,6 +18,8 @@ Variants (``--variants`` picks some; the default runs all):
 | `other_half` | `base`, half of the rays on other surfaces | free space in the box |
 | `crossing` | `base`, free-space rays from every keyframe ray that crosses the 3D box | free space in the box |
 | `crossing_half` | `crossing`, half of the rays free-space ones | free space in the box |
+| `carve` | `base`, every sample in front of an observed surface asked to be empty (weight 10) | free space in the box |
+| `carve_half` | `carve` and `other_half` | |
 | `kinect_noise` | (``--scene``) the simulator's depth with Kinect v1's noise, 1.5 mm x depth^2 | depth noise at range |
 | `kinect_holes` | (``--scene``) 12 % of the depth pixels dropped at random | depth holes |
 | `kinect` | (``--scene``) both | |
@@ -84,6 +86,9 @@ VARIANTS: dict[str, Variant] = {
     "other_half": Variant(lambda m: replace(m, own_ray_fraction=0.5)),
     "crossing": Variant(lambda m: replace(m, free_space_rays="crossing")),
     "crossing_half": Variant(lambda m: replace(m, free_space_rays="crossing", own_ray_fraction=0.5)),
+    "carve": Variant(lambda m: replace(m, loss_weights=replace(m.loss_weights, free_space=10.0))),
+    "carve_half": Variant(lambda m: replace(m, own_ray_fraction=0.5,
+                                            loss_weights=replace(m.loss_weights, free_space=10.0))),
     "kinect_noise": Variant(sensor=KINECT_NOISE),
     "kinect_holes": Variant(sensor=KINECT_HOLES),
     "kinect": Variant(sensor={**KINECT_NOISE, **KINECT_HOLES}),

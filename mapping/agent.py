@@ -26,7 +26,7 @@ from mapping.instance_frames import refit_frames
 from mapping.instances import ExportedInstance, InstanceFrame, InstanceSlot
 from mapping.optim import AdamConfig, StackedAdam
 from mapping.keyframes import KeyframeBuffer
-from mapping.losses import data_loss
+from mapping.losses import data_loss, free_space_loss
 from mapping.runtime import flushed_denormals, resolve_device
 from mapping.render import (CompositeConfig, CompositeRender, RayBundle, ray_aabb, render_image, render_occupancy,
                             sample_along_rays)
@@ -234,6 +234,9 @@ class MappingAgent:
             valid = ~samples.occluded & (far > near)  # rays that cross the box in front of the camera
             total = total + data_loss(rendered, rays.depth, rays.rgb, rays.own.float(), valid,
                                       self.config.loss_weights).total
+            if self.config.loss_weights.free_space:
+                total = total + self.config.loss_weights.free_space * free_space_loss(
+                    out.occupancy.reshape(n, r, s), samples.depths, rays.depth, valid, self.config.sampler.surface_eps_m)
         return total
 
     def train_step(self, extra_loss: Callable[[], torch.Tensor] | None = None) -> float:

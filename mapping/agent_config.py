@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from mapping.config_fields import NEUTRAL_DEFAULT
 from mapping.losses import DataLossWeights
 from mapping.render import SamplerConfig
 
@@ -28,7 +29,7 @@ class MappingConfig:
     the 128-wide network that alone is ~30 GFLOP a step, too slow for a 2-core CPU)."""
     own_ray_fraction: float = 0.8
     """Share of an instance's rays on its own pixels; the rest on other surfaces in its 2D box."""
-    free_space_rays: str = "box2d"
+    free_space_rays: str = field(default="box2d", metadata=NEUTRAL_DEFAULT)
     """Where an instance's free-space rays (the ``1 - own_ray_fraction`` share) come from: ``box2d``, other
     surfaces inside the 2D box of its mask in keyframes that saw it (vMAP), or ``crossing``, any held
     keyframe's rays that enter its 3D box in front of their surface (``KeyframeBuffer.crossing_rays``)."""

@@ -7,11 +7,12 @@ then independent of how many instances are trained together; a flat (R,) input i
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import torch
 from torch import Tensor
 
+from mapping.config_fields import NEUTRAL_DEFAULT
 from mapping.render import RenderedRays
 
 DEPTH_UNCERTAINTY_EPS = 1e-4
@@ -79,6 +80,26 @@ class DataLossWeights:
     """lambda_3 (vMAP: colour x5)."""
     depth_uncertainty: bool = True
     """Weight depth errors by 1 / (sqrt(var) + 1e-4) as vMAP (False: the paper's plain L1)."""
+    free_space: float = field(default=0.0, metadata=NEUTRAL_DEFAULT)
+    """Weight of ``free_space_loss`` (0: off, vMAP's loss). Eq. 8 asks only that a ray's summed occupancy be
+    1 on the instance's pixels, which an occupied blob anywhere in front of the surface also gives; this
+    term asks every sample in front of an observed surface to be empty (empty-space carving)."""
+
+
+def free_space_loss(occupancy: Tensor, sample_depths: Tensor, depth: Tensor, valid: Tensor, margin_m: float) -> Tensor:
+    """Mean occupancy of the samples in front of an observed surface (depth < d - ``margin_m``), per leading
+    index over its rays' such samples, summed over the leading axes (as ``masked_mean``).
+
+    Args:
+        occupancy: (..., R, S) o_p.
+        sample_depths: (..., R, S) the samples' depths.
+        depth: (..., R) observed depth (0 = none: nothing is known in front of it).
+        valid: (..., R) bool rays to supervise at all.
+        margin_m: samples this close in front of the surface are left alone (the surface band).
+    """
+    front = (sample_depths < (depth - margin_m)[..., None]) & ((depth > 0) & valid)[..., None]
+    flat = front.shape[:-2] + (front.shape[-2] * front.shape[-1],)
+    return masked_mean(occupancy.reshape(flat), front.reshape(flat))
 
 
 @dataclass

@@ -449,3 +449,14 @@ def test_depth_and_colour_losses_ignore_invalid_rays():
     first_ray = render_occupancy(occ[:1], torch.full((1, 3, 3), 0.5), depths[:1])
     alone = data_loss(first_ray, depth[:1], rgb[:1], mask[:1])
     assert torch.allclose(only_first.depth, alone.depth) and torch.allclose(only_first.colour, alone.colour)
+
+
+def test_free_space_loss_counts_only_samples_in_front_of_an_observed_surface():
+    from mapping.losses import free_space_loss
+
+    occupancy = torch.tensor([[[0.5, 0.2, 1.0], [0.9, 0.9, 0.9]]])  # (N=1, R=2, S=3)
+    depths = torch.tensor([[[0.5, 1.0, 2.0], [0.5, 1.0, 2.0]]])
+    depth = torch.tensor([[2.0, 0.0]])  # ray 1 has no depth: nothing known in front of it
+    loss = free_space_loss(occupancy, depths, depth, torch.ones(1, 2, dtype=torch.bool), margin_m=0.1)
+    assert loss.item() == pytest.approx((0.5 + 0.2) / 2)  # the sample at 2.0 is on the surface band
+    assert free_space_loss(occupancy, depths, depth, torch.zeros(1, 2, dtype=torch.bool), 0.1).item() == 0.0

@@ -241,3 +241,15 @@ def test_tradeoff_table_runs_each_policy_on_each_scene_and_marks_the_pareto_fron
     assert pareto_front([(1.0, 50.0), (2.0, 40.0), (3.0, 60.0)]) == [0, 2]
     with pytest.raises(ValueError, match="not in table 'tradeoff'"):
         reproduce("tradeoff", ["tiny"], [0], "tiny", tmp_path, run_fn=_fake_run([]), methods=["sometimes"])
+
+
+def test_a_setting_added_at_its_old_behaviour_leaves_recorded_rows_valid():
+    from dataclasses import replace
+
+    from mapping.agent_config import MappingConfig
+    from mapping.pipeline.records import settings_record
+    from openmulti_env.runs.reproduce.runner import library_defaults
+
+    assert "free_space_rays" not in library_defaults("fast")["mapping"]  # rows from before it still match
+    assert settings_record(replace(MappingConfig(), free_space_rays="crossing"))["free_space_rays"] == "crossing"
+    assert settings_record(MappingConfig())["sampler"]["n_surface"] == 9  # nested configs kept whole

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import os
@@ -48,6 +49,19 @@ def as_record(value) -> dict:
     """``value`` as it reads back from a JSON file (tuples as lists, inf as inf): what a settings record
     on disk is compared with."""
     return json.loads(json.dumps(plain(value)))
+
+
+def settings_record(config) -> dict:
+    """A dataclass config as a settings record (``as_record(asdict(config))``) without the fields whose
+    metadata says ``neutral_default`` (``mapping.config_fields.NEUTRAL_DEFAULT``) that hold their default
+    (nested dataclasses too): a setting added after rows were recorded, at the behaviour from before it
+    existed, leaves those rows valid."""
+    def strip(obj):
+        if not dataclasses.is_dataclass(obj):
+            return obj
+        return {f.name: strip(getattr(obj, f.name)) for f in dataclasses.fields(obj)
+                if not (f.metadata.get("neutral_default") and getattr(obj, f.name) == f.default)}
+    return as_record(strip(config))
 
 
 def plain(value):

@@ -59,13 +59,13 @@ def policy_identity(policy: str) -> dict:
 def library_defaults(preset: str) -> dict:
     """The team settings a run takes from the library (JSON-plain), beside its method's options."""
     from mapping.team import ConsistencyConfig, ExchangeConfig  # noqa: PLC0415
-    from mapping.pipeline.records import as_record  # noqa: PLC0415
+    from mapping.pipeline.records import settings_record  # noqa: PLC0415
     from openmulti_env.presets import mapping_config  # noqa: PLC0415
 
-    consistency = asdict(ConsistencyConfig())
+    consistency = settings_record(ConsistencyConfig())
     consistency.pop("missing_edges")  # a method's option (``Method.run_options``), set by DiNNO's and DSGD's only
-    return as_record({"consistency": consistency, "exchange": asdict(ExchangeConfig()),
-                      "mapping": asdict(mapping_config(preset))})
+    return {"consistency": consistency, "exchange": settings_record(ExchangeConfig()),
+            "mapping": settings_record(mapping_config(preset))}
 
 
 def row_from_metrics(spec: RunSpec, metrics: dict) -> dict:
