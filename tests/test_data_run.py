@@ -48,6 +48,8 @@ def test_replica_team_always_writes_the_run_contract_and_answers_queries(tmp_pat
         assert m["depth_median_cm"] is not None and 0 <= m["depth_off_pct"] <= 100  # against the data's own depth
     assert metrics["ground_truth"] == "given" and metrics["masks"] == "dataset"
     assert metrics["config"]["frames_per_agent"] == {"agent_0": 6, "agent_1": 6}
+    team = metrics["config"]["team"]  # a recording gets empty-space carving; 6 frames are all keyframes
+    assert team["mapping"]["loss_weights"]["free_space"] == 10.0 and team["min_keyframes"] == 6
     # the team ran its rounds (6 frames per agent, 4 per round on tiny) and talked in every one
     assert metrics["config"]["policy"] == "always" and metrics["config"]["team"]["alignment"] is True
     assert metrics["rounds"] == len(metrics["bytes_per_round"]) == 2 and metrics["fleet_s"] > 0

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import torch
 
-from mapping.agent_config import MappingConfig
+from mapping.agent_config import MappingConfig, for_recordings
 from mapping.data.source import DataSource, prepare_inputs
 from mapping.field import OBJECT_FIELD
 from mapping.perception import shared_text_encoder
@@ -147,7 +147,8 @@ def run_data(data: str | Path, agents: int, policy: str, preset: str, seed: int,
                             "cross_rendering": cross_rendering, "float16": float16, "changed_only": changed_only,
                             **({"missing_edges": missing_edges} if consistency in ("dinno", "dsgd") else {})})
     team = run_team_config(chosen, alignment, consistency, cross_rendering, float16, changed_only,
-                           missing_edges=missing_edges, holdout_every=holdout_every)
+                           mapping=for_recordings(chosen.mapping), missing_edges=missing_edges,
+                           holdout_every=holdout_every)
     config = RunConfig(Path(out), team, team_channel(scripted, comm_budget_mb), seed=seed, device=device,
                        workers=workers, threads=threads, checkpoint_every=checkpoint_every, max_rounds=max_rounds,
                        progress=progress, processes=processes, title=f"{inputs.name}: policy {policy}")
