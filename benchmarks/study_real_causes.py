@@ -14,7 +14,7 @@ Variants (``--variants`` picks some; the default runs all):
 | `fixed_keyframes_all` | `fixed`, every frame a keyframe (5x keyframes and iterations) | keyframe selection + length |
 | `fixed_free_x5` | `fixed`, 5 stratified samples per ray instead of 1 | free space inside a box no sample supervises |
 | `fixed_other_half` | `fixed`, half of each instance's rays on other surfaces in its 2D box (default 20 %) | free space in the box |
-| `base` | today's defaults (`TeamConfig.min_keyframes`, `min_local_steps` from the preset) | |
+| `base` | today's defaults (`TeamConfig.min_keyframes`, `min_local_steps` from the preset; a recording also gets carving since it became `--data`'s default: the `base` rows of docs/real_data_study were made before) | |
 | `other_half` | `base`, half of the rays on other surfaces | free space in the box |
 | `crossing` | `base`, free-space rays from every keyframe ray that crosses the 3D box | free space in the box |
 | `crossing_half` | `crossing`, half of the rays free-space ones | free space in the box |
