@@ -20,6 +20,7 @@ Variants (``--variants`` picks some; the default runs all):
 | `crossing_half` | `crossing`, half of the rays free-space ones | free space in the box |
 | `carve` | `base`, every sample in front of an observed surface asked to be empty (weight 10) | free space in the box |
 | `carve_half` | `carve` and `other_half` | |
+| `planes_4cm` | `base`, the geometric segmenter's plane inlier distance 4 cm (was 2 cm) | segments at range |
 | `kinect_noise` | (``--scene``) the simulator's depth with Kinect v1's noise, 1.5 mm x depth^2 | depth noise at range |
 | `kinect_holes` | (``--scene``) 12 % of the depth pixels dropped at random | depth holes |
 | `kinect` | (``--scene``) both | |
@@ -35,6 +36,7 @@ skips the rows it has. Run: `.venv/bin/python benchmarks/study_real_causes.py --
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import shutil
@@ -45,7 +47,9 @@ from typing import Callable
 
 import numpy as np
 
+import mapping.data.source as data_source
 from mapping.agent_config import MappingConfig
+from mapping.perception.geometric_segmenter import GeometricSegmenterConfig
 from mapping.pipeline.records import write_json_atomic
 from openmulti_env.presets import PRESETS, Preset
 from openmulti_env.runs.run import run, run_data
@@ -74,6 +78,8 @@ class Variant:
     team: dict = field(default_factory=dict)
     sensor: dict = field(default_factory=dict)
     """``SensorConfig`` fields (simulated scenes only)."""
+    segmenter: dict = field(default_factory=dict)
+    """``GeometricSegmenterConfig`` fields (recordings without masks only)."""
 
 
 VARIANTS: dict[str, Variant] = {
@@ -89,6 +95,7 @@ VARIANTS: dict[str, Variant] = {
     "carve": Variant(lambda m: replace(m, loss_weights=replace(m.loss_weights, free_space=10.0))),
     "carve_half": Variant(lambda m: replace(m, own_ray_fraction=0.5,
                                             loss_weights=replace(m.loss_weights, free_space=10.0))),
+    "planes_4cm": Variant(segmenter={"plane_distance_m": 0.04}),
     "kinect_noise": Variant(sensor=KINECT_NOISE),
     "kinect_holes": Variant(sensor=KINECT_HOLES),
     "kinect": Variant(sensor={**KINECT_NOISE, **KINECT_HOLES}),
@@ -121,6 +128,18 @@ def _register(preset: str, variant: str) -> str:
     PRESETS[name] = _StudyPreset(**{**fields, "name": name, "mapping": change.mapping(base.mapping)},
                                  team_options=change.team, sensor=change.sensor)
     return name
+
+
+@contextlib.contextmanager
+def _segmenter(fields: dict):
+    """The data source's geometric segmenter with ``fields`` changed, for one run (this process only)."""
+    original = data_source.GeometricSegmenter
+    if fields:
+        data_source.GeometricSegmenter = lambda: original(GeometricSegmenterConfig(**fields))
+    try:
+        yield
+    finally:
+        data_source.GeometricSegmenter = original
 
 
 def _mean(values: list) -> float | None:
@@ -157,8 +176,9 @@ def main() -> None:
             shutil.rmtree(run_dir, ignore_errors=True)
             options = dict(device="cpu", threads=args.threads, holdout_every=args.holdout_every)
             preset = _register(args.preset, variant)
-            metrics = (run_data(data, args.agents, "always", preset, args.seed, run_dir, **options) if data else
-                       run(scene, args.agents, "always", preset, args.seed, run_dir, **options))
+            with _segmenter(VARIANTS[variant].segmenter):
+                metrics = (run_data(data, args.agents, "always", preset, args.seed, run_dir, **options) if data
+                           else run(scene, args.agents, "always", preset, args.seed, run_dir, **options))
             rows[key] = {k: _mean([a.get(k) for a in metrics["agents"].values()]) for k in KEYS}
             rows[key]["wall_s"] = metrics["wall_s"]
             rows[key]["load"] = os.getloadavg()[0]
