@@ -75,7 +75,8 @@ RECORDING_FREE_SPACE_WEIGHT = 10.0
 
 
 def for_recordings(config: MappingConfig) -> MappingConfig:
-    """The mapper settings for a real RGB-D recording: ``config`` with empty-space carving on (unless set).
+    """The mapper settings for a real RGB-D recording: ``config`` with empty-space carving on (a config that
+    already sets a carving weight keeps it).
 
     Measured (``benchmarks/study_real_causes.py``, 7-Scenes and TUM, 2 agents, ``fast``, seeds 0 and 1): the
     share of depth pixels off by > 5 cm fell from 30-56 % to 20-28 %, and no seed collapsed into a

@@ -280,13 +280,15 @@ class KeyframeBuffer:
         front = z > 1e-2
         zs = np.where(front, z, 1.0)
         u, v = local[..., 0] / zs * fx + cx, local[..., 1] / zs * fy + cy
-        big = np.inf
-        u0 = np.where(front.all(-1), np.where(front, u, big).min(-1), 0.0).clip(0, w - 1)
-        u1 = np.where(front.all(-1), np.where(front, u, -big).max(-1), w - 1.0).clip(0, w - 1)
-        v0 = np.where(front.all(-1), np.where(front, v, big).min(-1), 0.0).clip(0, h - 1)
-        v1 = np.where(front.all(-1), np.where(front, v, -big).max(-1), h - 1.0).clip(0, h - 1)
-        u0, u1, v0, v1 = np.ceil(u0), np.floor(u1), np.ceil(v0), np.floor(v1)
-        visible = front.any(-1) & (u0 <= u1) & (v0 <= v1)  # (N, K)
+        big = np.inf  # a box partly behind the camera may project anywhere: its whole image is a candidate
+        u0 = np.ceil(np.where(front.all(-1), np.where(front, u, big).min(-1), 0.0))
+        u1 = np.floor(np.where(front.all(-1), np.where(front, u, -big).max(-1), w - 1.0))
+        v0 = np.ceil(np.where(front.all(-1), np.where(front, v, big).min(-1), 0.0))
+        v1 = np.floor(np.where(front.all(-1), np.where(front, v, -big).max(-1), h - 1.0))
+        # the projection must overlap the image before it is clipped to it (an off-screen box is not seen)
+        visible = front.any(-1) & (u0 <= w - 1) & (u1 >= 0) & (v0 <= h - 1) & (v1 >= 0) \
+            & (u0 <= u1) & (v0 <= v1)  # (N, K)
+        u0, u1, v0, v1 = u0.clip(0, w - 1), u1.clip(0, w - 1), v0.clip(0, h - 1), v1.clip(0, h - 1)
         c = candidates * n_rays
         weights = visible / np.maximum(visible.sum(-1, keepdims=True), 1)
         slot = (weights.cumsum(-1)[:, None, :] < generator.random((n, c, 1))).sum(-1).clip(0, k - 1)  # (N, C)

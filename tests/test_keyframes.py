@@ -92,3 +92,6 @@ def test_crossing_rays_enter_the_box_in_front_of_their_surface_and_are_never_its
     rays = buf.sample([1], 40, 0.5, np.random.default_rng(1), boxes=(lo[1:], hi[1:]))
     assert rays.own[0, :20].all() and not rays.own[0, 20:].any()
     assert (rays.depth[0, 20:] == 2.0).all()  # free-space rays end on the wall behind the box's front
+    # a box in front of the camera but off the image's side is not seen: no ray crosses it
+    off_lo, off_hi = np.array([[3.0, -0.3, 1.0]]), np.array([[3.5, 0.3, 1.5]])
+    assert not buf.crossing_rays([2], off_lo, off_hi, 10, np.random.default_rng(0))[2].any()

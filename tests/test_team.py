@@ -528,6 +528,15 @@ def test_a_short_stream_trains_the_missing_local_steps_after_its_last_frame_and_
     assert short.done and [m.steps_after_stream() for m in short.members] == [8, 8]
     assert [m.mapper.steps for m in short.members] == [full_path, full_path]  # 2 keyframes x 2, then 8 more
     assert [m.mapper.steps for m in plain.members] == [4, 4]
+    # streams that end in different rounds: the first to end trains the rest once, not every later round
+    uneven = Team([_ShortStream(streams[0].inner, 8), _ShortStream(streams[1].inner, 12)], short.config,
+                  short.members[0].vocabulary, seed=0, device="cpu")
+    for _ in range(2):
+        uneven.round(RoundPlan.never(2))
+    assert uneven.members[0].done and not uneven.members[1].done
+    assert [m.mapper.steps for m in uneven.members] == [full_path, 4]
+    uneven.round(RoundPlan.never(2))
+    assert uneven.done and [m.mapper.steps for m in uneven.members] == [full_path, full_path]
     # a stream as long as the preset's path had all its steps: the setting changes nothing
     whole, _ = _tiny_team(tiny_world, min_local_steps=full_path, min_keyframes=6)
     base, _ = _tiny_team(tiny_world)

@@ -37,7 +37,7 @@ def save_reconstruction_views(path: str | Path, gt_mesh, agent_meshes: list, ref
     n = 1 + len(agent_meshes)
     fig, axes = plt.subplots(1, n, figsize=(4.2 * n, 5.0), squeeze=False)
     lo, hi = gt_mesh.bounds
-    below_ceiling = hi[2] - 0.15  # leave the ceiling out: it hides the room
+    below_ceiling = hi[2] - 0.15  # leave the ceiling out: it hides the room (a recording's z need not be up)
 
     def top_down(ax, points, by_height: bool = False, **style):
         points = points[points[:, 2] < below_ceiling]
@@ -48,7 +48,7 @@ def save_reconstruction_views(path: str | Path, gt_mesh, agent_meshes: list, ref
 
     shown = top_down(axes[0, 0], sample_points(gt_mesh, 100_000, seed=seed + 1), by_height=True)
     fig.colorbar(shown, ax=axes[0, 0], orientation="horizontal", fraction=0.05, pad=0.02, label="height [m]")
-    axes[0, 0].set_title(f"{reference}, from above (no ceiling)")
+    axes[0, 0].set_title(f"{reference}, looking down z (top 15 cm cut)")
     for a, (ax, mesh) in enumerate(zip(axes[0, 1:], agent_meshes)):
         classes = surface_classes(mesh, gt_mesh, seed=seed)
         for name in ("missed", "right", "invented"):  # what the map invents on top

@@ -157,7 +157,9 @@ class TeamMember(StreamReader, Outbox, Inbox, Agreement):
         reading = PenaltyReading()
         extra = self.local_consensus(reading) if self.config.consistency.local_consensus else None
         loss = self.mapper.train(keyframes * self.config.mapping.iterations_per_keyframe, extra) if keyframes else 0.0
-        if self.done and (rest := self.steps_after_stream()) > 0:  # a short stream: the rest after its last frame
+        # a short stream trains the rest once, in the round that read its last frame (a finished member's
+        # later rounds read nothing, and a team resumed after this round is past it)
+        if indices and self.done and (rest := self.steps_after_stream()) > 0:
             loss = self.mapper.train(rest, extra)
         parameter = reading.read()  # read once, not every step
         return LocalReport(indices, keyframes, loss - parameter, read_s + time.perf_counter() - start, parameter)
