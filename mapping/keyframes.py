@@ -51,6 +51,7 @@ class _InstancePixels:
     own: dict[int, np.ndarray] = field(default_factory=dict)
     other: dict[int, np.ndarray] = field(default_factory=dict)
     _packed: tuple | None = None
+    _keys: tuple | None = None
 
     def put(self, slot: int, own: np.ndarray, other: np.ndarray) -> None:
         self.own[slot], self.other[slot] = own.astype(np.int64), other.astype(np.int64)
@@ -84,9 +85,13 @@ class _InstancePixels:
         return self._packed
 
     def own_keys(self, image_size: int) -> np.ndarray:
-        """Sorted ``slot * image_size + pixel`` of every own pixel (to test candidates for membership)."""
-        slots, own_off, own_size, own_px = self.packed()[:4]
-        return np.repeat(slots, own_size) * image_size + own_px  # slots ascending, pixels sorted within
+        """Sorted ``slot * image_size + pixel`` of every own pixel (to test candidates for membership),
+        cached with ``packed``'s tuple."""
+        packed = self.packed()
+        if self._keys is None or self._keys[0] is not packed:
+            slots, _, own_size, own_px = packed[:4]
+            self._keys = (packed, np.repeat(slots, own_size) * image_size + own_px)  # sorted: slots, then pixels
+        return self._keys[1]
 
 
 def _draw(offsets: np.ndarray, sizes: np.ndarray, pixels: np.ndarray, entries: np.ndarray,
@@ -122,6 +127,7 @@ class KeyframeBuffer:
         self.depth: torch.Tensor | None = None  # (capacity, H*W) metres
         self.poses = torch.zeros(capacity, 4, 4, device=self.device)  # camera-to-world
         self.rays_cam: torch.Tensor | None = None  # (H*W, 3) camera directions, z = 1
+        self._camera: tuple | None = None  # ``camera()``, read from rays_cam
         self.index: dict[int, _InstancePixels] = {}
         self.slot_frame: list[int] = []  # frame index held by each used slot
         self.slot_instances: list[list[int]] = []
@@ -144,6 +150,7 @@ class KeyframeBuffer:
         v, u = np.mgrid[0:h, 0:w]
         cam = np.stack([(u - k.cx) / k.fx, (v - k.cy) / k.fy, np.ones_like(u, dtype=np.float64)], -1)
         self.rays_cam = torch.as_tensor(cam.reshape(-1, 3), dtype=torch.float32, device=self.device)
+        self._camera = None
         self.rgb = torch.zeros(self.capacity, h * w, 3, dtype=torch.uint8, device=self.device)
         self.depth = torch.zeros(self.capacity, h * w, device=self.device)
 
@@ -247,13 +254,15 @@ class KeyframeBuffer:
         )
 
     def camera(self) -> tuple[int, int, float, float, float, float]:
-        """(height, width, fx, fy, cx, cy) of the held keyframes, read back from the camera rays."""
-        cam = self.rays_cam  # (H*W, 3): ((u - cx) / fx, (v - cy) / fy, 1), row-major
-        w = int((cam[:, 1] == cam[0, 1]).sum())
-        h = cam.shape[0] // w
-        fx = 1.0 / float(cam[1, 0] - cam[0, 0]) if w > 1 else 1.0
-        fy = 1.0 / float(cam[w, 1] - cam[0, 1]) if h > 1 else 1.0
-        return h, w, fx, fy, -float(cam[0, 0]) * fx, -float(cam[0, 1]) * fy
+        """(height, width, fx, fy, cx, cy) of the held keyframes, read back once from the camera rays."""
+        if self._camera is None:
+            cam = self.rays_cam  # (H*W, 3): ((u - cx) / fx, (v - cy) / fy, 1), row-major
+            w = int((cam[:, 1] == cam[0, 1]).sum())
+            h = cam.shape[0] // w
+            fx = 1.0 / float(cam[1, 0] - cam[0, 0]) if w > 1 else 1.0
+            fy = 1.0 / float(cam[w, 1] - cam[0, 1]) if h > 1 else 1.0
+            self._camera = (h, w, fx, fy, -float(cam[0, 0]) * fx, -float(cam[0, 1]) * fy)
+        return self._camera
 
     @torch.no_grad()
     def crossing_rays(self, instance_ids: list[int], lo: np.ndarray, hi: np.ndarray, n_rays: int,
@@ -308,11 +317,10 @@ class KeyframeBuffer:
         ok = visible[rows, slot] & (depth > 0) & (t_far > t_near) & (t_near < depth)
         for i, iid in enumerate(instance_ids):  # never the instance's own pixels
             entry = self.index.get(iid)
-            if entry is not None and ok[i].any():
-                keys = entry.own_keys(h * w)
+            keys = entry.own_keys(h * w) if entry is not None and ok[i].any() else np.zeros(0, np.int64)
+            if len(keys):
                 cand = slot[i] * (h * w) + px[i]
-                at = np.searchsorted(keys, cand).clip(0, max(len(keys) - 1, 0))
-                ok[i] &= ~((len(keys) > 0) & (keys[at] == cand) if len(keys) else np.zeros(c, bool))
+                ok[i] &= keys[np.searchsorted(keys, cand).clip(max=len(keys) - 1)] != cand
         first = np.argsort(~ok, axis=1, kind="stable")[:, :n_rays]  # the valid candidates first
         return slot[rows, first], px[rows, first], ok[rows, first]
 
@@ -365,6 +373,7 @@ class KeyframeBuffer:
         n = len(self.slot_frame)
         if state["rays_cam"] is not None:
             self.rays_cam = state["rays_cam"].to(self.device)
+            self._camera = None
             hw = self.rays_cam.shape[0]
             self.rgb = torch.zeros(self.capacity, hw, 3, dtype=torch.uint8, device=self.device)
             self.depth = torch.zeros(self.capacity, hw, device=self.device)

@@ -73,11 +73,13 @@ def cull_three_ways(mesh: trimesh.Trimesh | None, viewpoints: np.ndarray,
 
 
 def score_three_ways(mesh: trimesh.Trimesh | None, gt: trimesh.Trimesh, viewpoints: np.ndarray,
-                     views: CameraViews | None, seed: int,
-                     meshes: dict[str, trimesh.Trimesh | None] | None = None) -> dict[str, float | None]:
-    """acc / comp / comp ratio of ``mesh`` under each culling (``views=None`` skips ``nice_slam``;
-    ``meshes``: ``cull_three_ways``'s result when already made)."""
-    meshes = cull_three_ways(mesh, viewpoints, views) if meshes is None else meshes
+                     views: CameraViews | None, seed: int) -> dict[str, float | None]:
+    """acc / comp / comp ratio of ``mesh`` under each culling (``views=None`` skips ``nice_slam``)."""
+    return score_culled(cull_three_ways(mesh, viewpoints, views), gt, seed)
+
+
+def score_culled(meshes: dict[str, trimesh.Trimesh | None], gt: trimesh.Trimesh, seed: int) -> dict[str, float | None]:
+    """acc / comp / comp ratio of each of ``cull_three_ways``'s meshes against ``gt``."""
     out: dict[str, float | None] = {}
     for name, culled in meshes.items():
         m = evaluate_mesh(culled if culled is not None and len(culled.faces) else None, gt, seed=seed)
@@ -105,7 +107,7 @@ def score_member(member: TeamMember, gt: GroundTruth, views: CameraViews | None,
     labelled(book, labels, caption).save(out / "codebook", name)
     semantic = None if gt.semantic is None else semantic_metrics(*gt.semantic, np.asarray(mesh.vertices), ids, labels)
     culled = cull_three_ways(mesh if has_mesh else None, gt.viewpoints, views)
-    scores = score_three_ways(mesh if has_mesh else None, gt.mesh, gt.viewpoints, views, seed, culled)
+    scores = score_culled(culled, gt.mesh, seed)
     adopted = sum(1 for i in mapper.live_ids() if not mapper.keyframes.has_pixels(i))
     check = depth_check(mesh if has_mesh else None, frames, stride=DEPTH_CHECK_STRIDE)
     scores.update(depth_median_cm=check.median_cm, depth_off_pct=check.off_pct,
