@@ -40,8 +40,11 @@ class MeshRaycaster:
         face : (n,) int64
           Index of the hit triangle, -1 when none.
         """
-        rays = np.concatenate([np.broadcast_to(origins, directions.shape), directions], axis=1)
-        out = self._scene.cast_rays(o3d.core.Tensor(rays.astype(np.float32)), nthreads=0)
+        directions = np.asarray(directions)
+        rays = np.empty((len(directions), 6), np.float32)  # written once in float32: no float64 copy
+        rays[:, :3] = origins
+        rays[:, 3:] = directions
+        out = self._scene.cast_rays(o3d.core.Tensor(rays), nthreads=0)
         t = out["t_hit"].numpy()
         face = out["primitive_ids"].numpy().astype(np.int64)
         face[~np.isfinite(t)] = -1
