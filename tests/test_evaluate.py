@@ -249,3 +249,68 @@ def test_the_top_down_picture_draws_every_agent_even_without_a_mesh(tmp_path):
     gt = trimesh.util.concatenate([square(2.0), square(2.0, z_m=1.0)])  # a floor and a "ceiling"
     path = save_reconstruction_views(tmp_path / "top.png", gt, [square(2.0, width_m=1.0), None], "TSDF reference")
     assert path.stat().st_size > 10_000
+
+
+def _reference_visibility(caster, viewpoints, points, normals, max_range_m):
+    """The visibility test written point by point (what ``visibility_matrix`` must equal)."""
+    from mapping.evaluate.visibility import OCCLUSION_SLACK_M, SURFACE_OFFSET_M
+
+    lifted = points + SURFACE_OFFSET_M * normals
+    out = np.zeros((len(viewpoints), len(points)), bool)
+    for i, eye in enumerate(viewpoints):
+        to_pt = lifted - eye
+        dist = np.linalg.norm(to_pt, axis=1)
+        ok = ((normals * to_pt).sum(axis=1) < 0) & (dist < max_range_m) & (dist > 1e-6)
+        idx = np.flatnonzero(ok)
+        t, _ = caster.cast(eye, to_pt[idx] / dist[idx, None])
+        out[i, idx[t >= dist[idx] - OCCLUSION_SLACK_M]] = True
+    return out
+
+
+def test_visibility_matrix_equals_the_point_by_point_test_in_blocks_and_with_stop_when_seen():
+    from mapping.evaluate.raycast import MeshRaycaster
+    from mapping.evaluate.visibility import visibility_matrix
+
+    boxes = [trimesh.creation.box(extents=e, transform=trimesh.transformations.translation_matrix(c))
+             for e, c in [((4, 4, 2.5), (0, 0, 1.25)), ((0.6, 0.6, 0.8), (0.5, -0.4, 0.4)),
+                          ((0.3, 1.2, 1.5), (-1.0, 0.8, 0.75))]]
+    scene = trimesh.util.concatenate(boxes).subdivide().subdivide()
+    rng = np.random.default_rng(3)
+    points, face = trimesh.sample.sample_surface(scene, 3000, seed=1)
+    normals = scene.face_normals[face]
+    normals[::2] *= -1.0  # both sides of every wall
+    viewpoints = rng.uniform([-1.9, -1.9, 0.2], [1.9, 1.9, 2.3], (23, 3))
+    caster = MeshRaycaster(scene)
+    for max_range in (8.0, 2.0):  # 2 m: the range test decides for many points
+        expected = _reference_visibility(caster, viewpoints, points, normals, max_range)
+        assert 0 < expected.sum() < expected.size
+        for block in (1, 5, 64):
+            full = visibility_matrix(caster, viewpoints, points, normals, max_range, block=block)
+            np.testing.assert_array_equal(full, expected)
+            first = visibility_matrix(caster, viewpoints, points, normals, max_range, stop_when_seen=True, block=block)
+            np.testing.assert_array_equal(first.any(axis=0), expected.any(axis=0))
+            assert first.sum(axis=0).max() == 1  # only the first viewpoint that saw a point
+            seen = np.flatnonzero(first.any(axis=0))
+            np.testing.assert_array_equal(first[:, seen].argmax(axis=0), expected[:, seen].argmax(axis=0))
+
+
+def test_face_group_keys_number_groups_as_a_row_sort_does():
+    from mapping.evaluate.visibility import group_keys
+
+    rng = np.random.default_rng(0)
+    cells = rng.integers(-40, 40, (5000, 3))
+    side = rng.integers(0, 6, 5000)
+    _, expected = np.unique(np.concatenate([cells, side[:, None]], axis=1), axis=0, return_inverse=True)
+    _, got = np.unique(group_keys(cells, side), return_inverse=True)
+    np.testing.assert_array_equal(got.reshape(-1), expected.reshape(-1))
+
+
+def test_a_reference_sampled_once_scores_every_map_as_sampling_it_each_time():
+    from mapping.evaluate import SampledSurface, evaluate_mesh
+
+    gt = trimesh.creation.box(extents=(2.0, 1.0, 1.0))
+    reference = SampledSurface.of(gt, count=5000, seed=4)
+    for rec in (trimesh.creation.box(extents=(2.0, 1.0, 0.9)), trimesh.creation.icosphere(radius=0.6)):
+        assert evaluate_mesh(rec, gt, count=5000, seed=4, reference=reference) == evaluate_mesh(rec, gt, count=5000, seed=4)
+    with pytest.raises(ValueError, match="seed=4"):
+        evaluate_mesh(rec, gt, count=5000, seed=5, reference=reference)

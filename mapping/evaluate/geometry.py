@@ -29,6 +29,7 @@ __all__ = [
     "accuracy_completion",
     "empty_metrics",
     "evaluate_mesh",
+    "SampledSurface",
     "evaluate_per_instance",
     "sample_points",
 ]
@@ -125,10 +126,29 @@ def _check_points(points: object, name: str) -> np.ndarray:
     return points
 
 
+@dataclass(frozen=True)
+class SampledSurface:
+    """The ground truth's points as ``evaluate_mesh`` draws them (``count`` points, seed ``seed + 1``)
+    and their KD-tree, made once: a run scores every agent's map under every culling against the same
+    reference, and sampling it and building its tree again each time took half of that scoring."""
+
+    points: np.ndarray
+    tree: cKDTree
+    count: int
+    seed: int
+
+    @classmethod
+    def of(cls, mesh: trimesh.Trimesh, count: int = 200_000, seed: int = 0) -> "SampledSurface":
+        """``count`` points on ``mesh`` with ``evaluate_mesh``'s seed for the ground truth (``seed + 1``)."""
+        points = sample_points(mesh, count, seed=seed + 1)
+        return cls(points, cKDTree(points), int(count), int(seed))
+
+
 def accuracy_completion(
     rec_points: np.ndarray,
     gt_points: np.ndarray,
     ratio_threshold_m: float = COMPLETION_RATIO_THRESHOLD_M,
+    gt_tree: cKDTree | None = None,
 ) -> GeometricMetrics:
     """Accuracy, completion and completion ratio between two point sets.
 
@@ -141,6 +161,8 @@ def accuracy_completion(
     ratio_threshold_m : float
       A ground-truth point is completed when its nearest reconstruction point is strictly closer
       than this (vMAP uses `< 0.05`).
+    gt_tree : cKDTree or None
+      A tree already built on ``gt_points`` (``SampledSurface``); None builds one.
 
     Returns
     -------
@@ -154,7 +176,9 @@ def accuracy_completion(
     rec = _check_points(rec_points, "rec_points")
     gt = _check_points(gt_points, "gt_points")
 
-    dist_rec_to_gt, _ = cKDTree(gt).query(rec, k=1, workers=-1)  # (n,)
+    if gt_tree is not None and gt_tree.n != len(gt):
+        raise ValueError(f"gt_tree holds {gt_tree.n} points but gt_points has {len(gt)}: build it on gt_points")
+    dist_rec_to_gt, _ = (gt_tree or cKDTree(gt)).query(rec, k=1, workers=-1)  # (n,)
     dist_gt_to_rec, _ = cKDTree(rec).query(gt, k=1, workers=-1)  # (m,)
     return GeometricMetrics(
         acc_cm=float(np.mean(dist_rec_to_gt)) * _M_TO_CM,
@@ -172,6 +196,7 @@ def evaluate_mesh(
     count: int = 200_000,
     seed: int = 0,
     ratio_threshold_m: float = COMPLETION_RATIO_THRESHOLD_M,
+    reference: SampledSurface | None = None,
 ) -> GeometricMetrics:
     """Sample `count` points on each mesh and compare them with `accuracy_completion`.
 
@@ -187,6 +212,9 @@ def evaluate_mesh(
       Ground truth; must have faces.
     count, seed : int
       Points per mesh and sampler seed.
+    reference : SampledSurface or None
+      ``gt_mesh``'s points and tree made once for many maps (same ``count`` and ``seed``; the same
+      figures as without it); None samples them here.
 
     Returns
     -------
@@ -197,8 +225,12 @@ def evaluate_mesh(
     if _is_empty(rec_mesh):
         return empty_metrics(count, ratio_threshold_m)
     rec_points = sample_points(rec_mesh, count, seed=seed)
-    gt_points = sample_points(gt_mesh, count, seed=seed + 1)
-    return accuracy_completion(rec_points, gt_points, ratio_threshold_m)
+    if reference is None:
+        return accuracy_completion(rec_points, sample_points(gt_mesh, count, seed=seed + 1), ratio_threshold_m)
+    if (reference.count, reference.seed) != (count, seed):
+        raise ValueError(f"reference was sampled with count={reference.count}, seed={reference.seed}; "
+                         f"this call asks for count={count}, seed={seed}")
+    return accuracy_completion(rec_points, reference.points, ratio_threshold_m, gt_tree=reference.tree)
 
 
 def evaluate_per_instance(

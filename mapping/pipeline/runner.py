@@ -21,6 +21,7 @@ import numpy as np
 from tqdm import tqdm
 
 from mapping.checkpoint import CheckpointError
+from mapping.evaluate import SampledSurface
 from mapping.pipeline.records import as_record, forget_stale_checkpoints, plain, write_json_atomic
 from mapping.pipeline.scoring import DEPTH_CHECK_EVERY, mean_metrics, score_member, team_semantics
 from mapping.pipeline.source import GroundTruth, Source, SourceRecord
@@ -163,11 +164,13 @@ def evaluate_team(source: Source, record: SourceRecord, gt: GroundTruth, team: T
     (out / "meshes").mkdir(parents=True, exist_ok=True)
     gt.mesh.export(out / "meshes" / gt.file_name)
     per_agent, maps = {}, []
+    reference = SampledSurface.of(gt.mesh, seed=seed)  # every agent is scored against the same points
     for member in tqdm(team.local_members(), desc="evaluating", unit="agent", disable=not config.progress):
         per_agent[member.name], own = score_member(member, gt, views, seed, out, source.text_encoder,
                                                    source.image_encoder, record.caption,
                                                    frames=source.agent_frames(member.index, DEPTH_CHECK_EVERY),
-                                                   heldout=heldout_frames(source, member.index, config.team))
+                                                   heldout=heldout_frames(source, member.index, config.team),
+                                                   reference=reference)
         maps.append(own)
         if config.plots:
             save_rendered_views(out / "plots" / f"rendered_views_{member.name}.png", source, member,

@@ -21,7 +21,7 @@ from typing import Callable, Sequence
 import numpy as np
 import trimesh
 
-from mapping.evaluate import evaluate_mesh, export_scene_mesh, merge_instance_meshes
+from mapping.evaluate import SampledSurface, evaluate_mesh, export_scene_mesh, merge_instance_meshes
 from mapping.data.frame import Frame
 from mapping.evaluate.culling import cull_to_frustums
 from mapping.evaluate.depth_check import depth_check
@@ -78,11 +78,15 @@ def score_three_ways(mesh: trimesh.Trimesh | None, gt: trimesh.Trimesh, viewpoin
     return score_culled(cull_three_ways(mesh, viewpoints, views), gt, seed)
 
 
-def score_culled(meshes: dict[str, trimesh.Trimesh | None], gt: trimesh.Trimesh, seed: int) -> dict[str, float | None]:
-    """acc / comp / comp ratio of each of ``cull_three_ways``'s meshes against ``gt``."""
+def score_culled(meshes: dict[str, trimesh.Trimesh | None], gt: trimesh.Trimesh, seed: int,
+                 reference: SampledSurface | None = None) -> dict[str, float | None]:
+    """acc / comp / comp ratio of each of ``cull_three_ways``'s meshes against ``gt`` (``reference``: its
+    points and tree made once for many maps, ``SampledSurface.of(gt, seed=seed)``; made here when None)."""
+    reference = reference or SampledSurface.of(gt, seed=seed)
     out: dict[str, float | None] = {}
     for name, culled in meshes.items():
-        m = evaluate_mesh(culled if culled is not None and len(culled.faces) else None, gt, seed=seed)
+        m = evaluate_mesh(culled if culled is not None and len(culled.faces) else None, gt, seed=seed,
+                          reference=reference)
         s = CULLING_SUFFIXES[name]
         out.update({f"acc_cm{s}": finite_or_none(m.acc_cm), f"comp_cm{s}": finite_or_none(m.comp_cm),
                     f"comp_ratio{s}": float(m.comp_ratio)})
@@ -91,7 +95,8 @@ def score_culled(meshes: dict[str, trimesh.Trimesh | None], gt: trimesh.Trimesh,
 
 def score_member(member: TeamMember, gt: GroundTruth, views: CameraViews | None, seed: int, out: Path,
                  encoder, image_encoder, caption: Callable[[int, str], str] | None = None,
-                 frames: Sequence[Frame] = (), heldout: Sequence[Frame] = ()) -> tuple[dict, MemberMap]:
+                 frames: Sequence[Frame] = (), heldout: Sequence[Frame] = (),
+                 reference: SampledSurface | None = None) -> tuple[dict, MemberMap]:
     """Mesh one member's own map (``out/meshes/<name>.ply``), label its code book against the ground
     truth's categories (``out/codebook/<name>``; ``caption(id, caption)`` renames the captions written),
     score it (``score_three_ways``), where the ground truth has categories its F-mIoU / F-mAcc, and against
@@ -107,7 +112,7 @@ def score_member(member: TeamMember, gt: GroundTruth, views: CameraViews | None,
     labelled(book, labels, caption).save(out / "codebook", name)
     semantic = None if gt.semantic is None else semantic_metrics(*gt.semantic, np.asarray(mesh.vertices), ids, labels)
     culled = cull_three_ways(mesh if has_mesh else None, gt.viewpoints, views)
-    scores = score_culled(culled, gt.mesh, seed)
+    scores = score_culled(culled, gt.mesh, seed, reference)
     adopted = sum(1 for i in mapper.live_ids() if not mapper.keyframes.has_pixels(i))
     check = depth_check(mesh if has_mesh else None, frames, stride=DEPTH_CHECK_STRIDE)
     scores.update(depth_median_cm=check.median_cm, depth_off_pct=check.off_pct,
