@@ -126,7 +126,7 @@ def _check_points(points: object, name: str) -> np.ndarray:
     return points
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class SampledSurface:
     """The ground truth's points as ``evaluate_mesh`` draws them (``count`` points, seed ``seed + 1``)
     and their KD-tree, made once: a run scores every agent's map under every culling against the same
@@ -178,7 +178,7 @@ def accuracy_completion(
 
     if gt_tree is not None and gt_tree.n != len(gt):
         raise ValueError(f"gt_tree holds {gt_tree.n} points but gt_points has {len(gt)}: build it on gt_points")
-    dist_rec_to_gt, _ = (gt_tree or cKDTree(gt)).query(rec, k=1, workers=-1)  # (n,)
+    dist_rec_to_gt, _ = (gt_tree if gt_tree is not None else cKDTree(gt)).query(rec, k=1, workers=-1)  # (n,)
     dist_gt_to_rec, _ = cKDTree(rec).query(gt, k=1, workers=-1)  # (m,)
     return GeometricMetrics(
         acc_cm=float(np.mean(dist_rec_to_gt)) * _M_TO_CM,

@@ -31,7 +31,7 @@ def visibility_matrix(caster: MeshRaycaster, viewpoints: np.ndarray, points: np.
     that face away or lie out of range, with a margin far above their rounding error; the exact test
     (and the ray) then runs only on the rest, computed as it always was, so every ray and every
     comparison is bit-identical. Measured on a 1.2 M-face map against 270 viewpoints: the arithmetic
-    around the rays took 0.4x the time (``docs/benchmarks.md``).
+    around the rays took 0.4x the time (``docs/profile.md``).
 
     Parameters
     ----------
