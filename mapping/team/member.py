@@ -14,6 +14,7 @@ delivered one gave the peer), ``receive_parameters`` (hold, align on arrival, ad
 from __future__ import annotations
 
 import time
+import weakref
 from dataclasses import dataclass, replace
 from typing import Protocol, Sequence
 
@@ -116,8 +117,10 @@ class TeamMember(StreamReader, Outbox, Inbox, Agreement):
         mapping = config.mapping
         if (every := config.keyframe_every(len(stream))) != mapping.keyframe_every:
             mapping = replace(mapping, keyframe_every=every)  # a short stream: keyframes more often
+        me = weakref.ref(self)  # the mapper's structure test must not keep its member alive (a cycle
+        # outlives the team until a full garbage collection, which costs an env reset 130 ms)
         self.mapper = MappingAgent(mapping, is_structure=lambda iid: config.global_map
-                                   or self.labels.get(iid) in vocabulary.structure,
+                                   or me().labels.get(iid) in vocabulary.structure,
                                    device=device, seed=seed, agent_index=index)
         self.fusion = OnlineFusion(config.fusion)
         self.next_frame = 0
