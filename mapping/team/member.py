@@ -14,7 +14,6 @@ delivered one gave the peer), ``receive_parameters`` (hold, align on arrival, ad
 from __future__ import annotations
 
 import time
-import weakref
 from dataclasses import dataclass, replace
 from typing import Protocol, Sequence
 
@@ -107,20 +106,34 @@ class StreamReader:
         return [self.stream.read(i) for i in range(self.next_frame, stop)], time.perf_counter() - start
 
 
+@dataclass(frozen=True)
+class StructureTest:
+    """Whether an instance is a wall, floor or ceiling (the mapper's wider networks), by its member's labels.
+
+    It holds the member's label dict itself, not the member: a member then holds no reference cycle (a
+    reset frees the old team by reference counting, with no full garbage collection) and still pickles
+    whole into and out of a Ray process."""
+
+    labels: dict[int, str]
+    structure: frozenset[str]
+    global_map: bool
+
+    def __call__(self, iid: int) -> bool:
+        return self.global_map or self.labels.get(iid) in self.structure
+
+
 class TeamMember(StreamReader, Outbox, Inbox, Agreement):
     """Agent ``index`` of a team (see the module docstring for the round's calls)."""
 
     def __init__(self, index: int, stream: AgentStream, config: TeamConfig, vocabulary: Vocabulary, seed: int,
                  device: str = "auto"):
         self.index, self.stream, self.config, self.vocabulary = index, stream, config, vocabulary
-        self.labels: dict[int, str] = {}
+        self._labels: dict[int, str] = {}
         mapping = config.mapping
         if (every := config.keyframe_every(len(stream))) != mapping.keyframe_every:
             mapping = replace(mapping, keyframe_every=every)  # a short stream: keyframes more often
-        me = weakref.ref(self)  # the mapper's structure test must not keep its member alive (a cycle
-        # outlives the team until a full garbage collection, which costs an env reset 130 ms)
-        self.mapper = MappingAgent(mapping, is_structure=lambda iid: config.global_map
-                                   or me().labels.get(iid) in vocabulary.structure,
+        self.mapper = MappingAgent(mapping, is_structure=StructureTest(self._labels, vocabulary.structure,
+                                                                       config.global_map),
                                    device=device, seed=seed, agent_index=index)
         self.fusion = OnlineFusion(config.fusion)
         self.next_frame = 0
@@ -139,6 +152,12 @@ class TeamMember(StreamReader, Outbox, Inbox, Agreement):
         self._unacknowledged: dict[int, tuple[dict, dict]] = {}  # receiver -> bookkeeping of the message in flight
         self.delivered_round: dict[str, dict[int, int]] = {"params": {}, "rays": {}, "points": {}}  # kind -> peer -> round
         self._last_position: np.ndarray | None = None
+
+    @property
+    def labels(self) -> dict[int, str]:
+        """Own instance id -> category label. Edited in place, never replaced: the mapper's
+        ``StructureTest`` holds this very dict."""
+        return self._labels
 
     # ---- 1-3: perceive, fuse, local iterations ---------------------------------------------------
     def local_round(self, read: tuple[list, float] | None = None) -> LocalReport:

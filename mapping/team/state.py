@@ -47,7 +47,8 @@ def restore_member(m: TeamMember, s: dict) -> None:
     m.mapper.keyframes.restore(s["keyframes"])
     m.fusion.restore(s["fusion"])
     m.next_frame, m.max_frame_read = s["next_frame"], s["max_frame_read"]
-    m.labels = {int(k): v for k, v in s["labels"].items()}
+    m.labels.clear()  # in place: the mapper's structure test holds this dict
+    m.labels.update({int(k): v for k, v in s["labels"].items()})
     m.meaning = {int(k): (c, f.numpy(), conf) for k, (c, f, conf) in s["meaning"].items()}
     m.held = {int(p): {int(i): _payload(x) for i, x in t.items()} for p, t in s["held"].items()}
     m.held_round = dict(s["held_round"])
