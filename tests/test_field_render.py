@@ -460,3 +460,26 @@ def test_free_space_loss_counts_only_samples_in_front_of_an_observed_surface():
     loss = free_space_loss(occupancy, depths, depth, torch.ones(1, 2, dtype=torch.bool), margin_m=0.1)
     assert loss.item() == pytest.approx((0.5 + 0.2) / 2)  # the sample at 2.0 is on the surface band
     assert free_space_loss(occupancy, depths, depth, torch.zeros(1, 2, dtype=torch.bool), 0.1).item() == 0.0
+
+
+def test_query_blocks_pad_little_and_give_every_point_its_instances_value():
+    """Very unequal instances (a wall and a cup): blocks far smaller than the largest instance, and the same
+    values as each instance evaluated alone."""
+    from mapping.field import query_block
+
+    counts = torch.tensor([3000, 40, 0, 700, 5])
+    block = query_block(counts)
+    padded = int((((counts + block - 1) // block) * block)[counts > 0].sum())
+    assert block < 3000 and padded < 1.5 * int(counts.sum())  # one 3000-point block each: 3.2x the points
+    assert query_block(torch.tensor([7, 7])) == 7 and query_block(torch.tensor([5000]), block_size=256) <= 256
+    bank = make_bank(5)
+    gen = torch.Generator().manual_seed(1)
+    rows = torch.repeat_interleave(torch.arange(5), counts)
+    rows = rows[torch.randperm(len(rows), generator=gen)]
+    lo, hi = bank.bound_min[rows], bank.bound_max[rows]
+    pts = lo + (hi - lo) * torch.rand(len(rows), 3, generator=gen)
+    packed = bank.query(pts, rows)
+    for i in (0, 1, 3, 4):
+        alone = bank(pts[rows == i][None], rows=torch.tensor([i]))
+        torch.testing.assert_close(packed.occupancy[rows == i], alone.occupancy[0], rtol=0, atol=1e-6)
+        torch.testing.assert_close(packed.colour[rows == i], alone.colour[0], rtol=0, atol=1e-6)
