@@ -228,7 +228,10 @@ class InstanceFieldBank(nn.Module):
         order = torch.argsort(rows, stable=True)
         sorted_rows = rows[order]
         counts = torch.bincount(sorted_rows, minlength=self.num_instances)
-        block = query_block(counts, block_size)
+        # under autograd one block as large as the largest instance, as before: a weight gradient sums over
+        # a block's points, so another split would change training in its last bits (and every figure)
+        block = (max(1, min(block_size, int(counts.max()))) if torch.is_grad_enabled()
+                 else query_block(counts, block_size))
         blocks_per_row = (counts + block - 1) // block
         first_block = torch.cumsum(blocks_per_row, 0) - blocks_per_row
         rank = torch.arange(m, device=points.device) - (torch.cumsum(counts, 0) - counts)[sorted_rows]
@@ -285,7 +288,7 @@ def query_block(counts: Tensor, block_size: int = 4096) -> int:
     largest count, or ``block_size``, when smaller) that pads the fewest points, each entry counted as
     ``BLOCK_OVERHEAD_POINTS`` more. One block as large as the largest instance padded every small
     instance to its size: 4x the points on a map's column grid (``mapping.topdown``), 2-3x its time.
-    Every point's value is the same whatever the block (tested)."""
+    Every point's value is the same whatever the block (tested); used without autograd only."""
     live = counts[counts > 0]
     if len(live) == 0:
         return 1

@@ -478,8 +478,11 @@ def test_query_blocks_pad_little_and_give_every_point_its_instances_value():
     rows = rows[torch.randperm(len(rows), generator=gen)]
     lo, hi = bank.bound_min[rows], bank.bound_max[rows]
     pts = lo + (hi - lo) * torch.rand(len(rows), 3, generator=gen)
-    packed = bank.query(pts, rows)
+    with torch.no_grad():  # the reading paths (column map, probes); under autograd one block as before
+        packed = bank.query(pts, rows)
+    trained = bank.query(pts, rows)
+    torch.testing.assert_close(trained.occupancy.detach(), packed.occupancy, rtol=0, atol=1e-6)
     for i in (0, 1, 3, 4):
         alone = bank(pts[rows == i][None], rows=torch.tensor([i]))
-        torch.testing.assert_close(packed.occupancy[rows == i], alone.occupancy[0], rtol=0, atol=1e-6)
-        torch.testing.assert_close(packed.colour[rows == i], alone.colour[0], rtol=0, atol=1e-6)
+        torch.testing.assert_close(packed.occupancy[rows == i], alone.occupancy[0].detach(), rtol=0, atol=1e-6)
+        torch.testing.assert_close(packed.colour[rows == i], alone.colour[0].detach(), rtol=0, atol=1e-6)
