@@ -19,6 +19,7 @@ import argparse
 import cProfile
 import pstats
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -79,6 +80,10 @@ def main() -> None:
             parser.error("--episodes must be at least 1")
         profiler = profile_env(args.preset, args.episodes, args.cache_dir)
     else:
+        checkpoint = Path(args.out) / "checkpoints" / "team.pt"
+        if not checkpoint.is_file():
+            parser.error(f"{checkpoint} does not exist: run the mapping first (e.g. `make demo OUT={args.out}`), "
+                         "then profile its evaluation")
         options = args.run_options or ["--scene", "room0", "--agents", "4", "--policy", "always",
                                        "--alignment", "paper", "--preset", "demo"]
         profiler = profile_evaluation([*options, "--out", args.out])
