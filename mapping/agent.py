@@ -8,7 +8,7 @@ weights -> data loss (eq. 8-11) -> one AdamW step on the stacked parameters.
 
 from __future__ import annotations
 
-from dataclasses import asdict, replace
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Callable
 
@@ -21,15 +21,35 @@ from mapping.bounds import InstanceBound
 from mapping.checkpoint import load_checkpoint, save_checkpoint
 from mapping.data import Frame, Intrinsics
 from mapping.evaluate import extract_instance_mesh
-from mapping.field import OBJECT_FIELD, STRUCTURE_FIELD, InstanceFieldBank, LiveRows
+from mapping.field import OBJECT_FIELD, STRUCTURE_FIELD, FieldOutput, InstanceFieldBank, LiveRows
 from mapping.instance_frames import refit_frames
 from mapping.instances import ExportedInstance, InstanceFrame, InstanceSlot
 from mapping.optim import AdamConfig, StackedAdam
-from mapping.keyframes import KeyframeBuffer
+from mapping.keyframes import InstanceRays, KeyframeBuffer
 from mapping.losses import data_loss, free_space_loss
 from mapping.runtime import flushed_denormals, resolve_device
-from mapping.render import (CompositeConfig, CompositeRender, RayBundle, ray_aabb, render_image, render_occupancy,
-                            sample_along_rays)
+from mapping.render import (CompositeConfig, CompositeRender, RayBundle, RaySamples, ray_aabb, render_image,
+                            render_occupancy, sample_along_rays)
+
+
+@dataclass
+class TrainingBatch:
+    """One bank's part of a training step: the sampled keyframe rays of its trainable instances
+    (``rows``, (N,)) and the samples along them inside each instance's box."""
+
+    bank: str
+    rows: torch.Tensor
+    rays: InstanceRays
+    samples: RaySamples
+    near: torch.Tensor
+    far: torch.Tensor
+    """(N, R) where each ray enters and leaves its instance's box (clamped to the camera)."""
+
+    @property
+    def positions(self) -> torch.Tensor:
+        """(N, R * S, 3) world points the field is evaluated on."""
+        n, r, s = self.samples.depths.shape
+        return self.samples.positions.reshape(n, r * s, 3)
 
 
 class MappingAgent:
@@ -208,9 +228,11 @@ class MappingAgent:
         return [iid for iid, s in sorted(self.slots.items())
                 if s.bank == bank and s.alive and self.keyframes.has_pixels(iid)]
 
-    def data_loss(self) -> torch.Tensor:
-        """Eq. 11 summed over both banks, on one batch of keyframe rays per instance."""
-        total = torch.zeros((), device=self.device)
+    def training_batches(self) -> list[TrainingBatch]:
+        """One step's rays and samples per bank (the keyframe rays of every trainable instance, samples
+        inside its box): what ``data_loss`` evaluates the field on, apart so that a fleet can evaluate
+        every agent's batches in one computation (``mapping.fleet``)."""
+        batches = []
         for name, bank in self.banks.items():
             ids = self.trainable_ids(name)
             if not ids:
@@ -228,16 +250,37 @@ class MappingAgent:
             near, far = t_near.clamp(min=0.0), t_far.clamp(min=0.0)
             samples = sample_along_rays(bundle, rays.depth, rays.own, self.config.sampler, near=near, far=far,
                                         generator=self.generator)
-            n, r, s = samples.depths.shape
-            out = bank(samples.positions.reshape(n, r * s, 3), rows)
-            rendered = render_occupancy(out.occupancy.reshape(n, r, s), out.colour.reshape(n, r, s, 3), samples.depths)
-            valid = ~samples.occluded & (far > near)  # rays that cross the box in front of the camera
-            total = total + data_loss(rendered, rays.depth, rays.rgb, rays.own.float(), valid,
-                                      self.config.loss_weights).total
-            if self.config.loss_weights.free_space:
-                total = total + self.config.loss_weights.free_space * free_space_loss(
-                    out.occupancy.reshape(n, r, s), samples.depths, rays.depth, valid, self.config.sampler.surface_eps_m)
+            batches.append(TrainingBatch(name, rows, rays, samples, near, far))
+        return batches
+
+    def add_batch_loss(self, total: torch.Tensor, batch: TrainingBatch, out: FieldOutput) -> torch.Tensor:
+        """``total`` + eq. 11 (and the free-space term when weighted) of one bank's batch, given the
+        field's output on ``batch.positions``."""
+        n, r, s = batch.samples.depths.shape
+        rays, samples = batch.rays, batch.samples
+        rendered = render_occupancy(out.occupancy.reshape(n, r, s), out.colour.reshape(n, r, s, 3), samples.depths)
+        valid = ~samples.occluded & (batch.far > batch.near)  # rays that cross the box in front of the camera
+        total = total + data_loss(rendered, rays.depth, rays.rgb, rays.own.float(), valid,
+                                  self.config.loss_weights).total
+        if self.config.loss_weights.free_space:
+            total = total + self.config.loss_weights.free_space * free_space_loss(
+                out.occupancy.reshape(n, r, s), samples.depths, rays.depth, valid, self.config.sampler.surface_eps_m)
         return total
+
+    def data_loss(self) -> torch.Tensor:
+        """Eq. 11 summed over both banks, on one batch of keyframe rays per instance."""
+        total = torch.zeros((), device=self.device)
+        for batch in self.training_batches():
+            total = self.add_batch_loss(total, batch, self.banks[batch.bank](batch.positions, batch.rows))
+        return total
+
+    def step_optimisers(self, loss: torch.Tensor) -> float:
+        """AdamW on every bank after ``loss``'s gradient was taken (no step when it has none); counts the step."""
+        if loss.requires_grad:
+            for optimiser in self.optimisers.values():
+                optimiser.step()
+        self.steps += 1
+        return float(loss.detach())
 
     def train_step(self, extra_loss: Callable[[], torch.Tensor] | None = None) -> float:
         """One step: sample rays -> samples inside each box -> field -> render -> data loss (+ extra)
@@ -249,10 +292,7 @@ class MappingAgent:
             optimiser.zero_grad()
         if loss.requires_grad:
             loss.backward()
-            for optimiser in self.optimisers.values():
-                optimiser.step()
-        self.steps += 1
-        return float(loss.detach())
+        return self.step_optimisers(loss)
 
     # ---- outputs ---------------------------------------------------------------------------------
     def instance_meshes(self) -> dict[int, trimesh.Trimesh]:

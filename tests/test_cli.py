@@ -96,7 +96,8 @@ def test_every_scripted_policy_runs_rounds_on_the_tiny_world(policy, tmp_path):
     from openmulti_env.runs.run import run
 
     result = run("tiny", 3, policy, "tiny", 0, tmp_path / policy.replace(":", "_"), device="cpu",
-                 comm_budget_mb=1.0 if policy == "budget" else None, progress=False, max_rounds=2, plots=False)
+                 comm_budget_mb=1.0 if policy == "budget" else None, progress=False, max_rounds=2, plots=False,
+                 learner="fleet" if policy == "round_robin" else "per_agent")  # the fleet learner's run path too
     assert result["rounds"] == 2
     if policy == "never":
         assert result["bytes_sent_total"] == 0

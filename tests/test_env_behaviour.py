@@ -57,6 +57,21 @@ def test_same_seed_same_actions_same_episode_cold_and_warm(tmp_path):
     _assert_same_episode(first, third)
 
 
+def test_a_fleet_learner_env_plays_the_per_agent_episode(cache):
+    """``learner="fleet"`` (every agent's training batched): the same episode to float tolerance."""
+    apart = _episode(parallel_env(preset="rl_tiny", cache_dir=cache), seed=5, action_seed=1)
+    fleet = _episode(parallel_env(preset="rl_tiny", cache_dir=cache, learner="fleet"), seed=5, action_seed=1)
+    assert len(apart) == len(fleet)
+    for a, b in zip(apart[1:], fleet[1:]):
+        obs_a, rewards_a, *_, infos_a = a
+        obs_b, rewards_b, *_, infos_b = b
+        assert rewards_b == pytest.approx(rewards_a, abs=1e-4)
+        for agent in infos_a:
+            assert infos_b[agent]["bytes_sent"] == infos_a[agent]["bytes_sent"]
+            for key in obs_a[agent]:
+                np.testing.assert_allclose(obs_b[agent][key], obs_a[agent][key], atol=1e-3)
+
+
 def test_another_episode_seed_gives_another_episode(cache):
     e = parallel_env(preset="rl_tiny", cache_dir=cache)
     a = _episode(e, seed=1, action_seed=0)
@@ -95,6 +110,10 @@ def test_bad_construction_is_refused_clearly(cache):
         parallel_env(preset="rl_tiny", reward="selfish")
     with pytest.raises(ValueError, match="num_agents must be between 2"):
         parallel_env(preset="rl_tiny", num_agents=1)
+    with pytest.raises(ValueError, match="learner must be one of"):
+        parallel_env(preset="rl_tiny", learner="batched")
+    with pytest.raises(ValueError, match="not with agent_processes"):
+        parallel_env(preset="rl_tiny", learner="fleet", agent_processes="ray")
     with pytest.raises(ValueError, match="render_mode"):
         parallel_env(preset="rl_tiny", render_mode="ascii")
     with pytest.raises(ValueError, match="unknown scene"):

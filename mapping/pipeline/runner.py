@@ -54,6 +54,8 @@ class RunConfig:
     """Agents trained side by side on threads (``Team(workers=)``; results do not depend on it)."""
     processes: str | None = None
     """``"ray"``: every agent in a process of its own (``Team(processes=)``; the same maps on CPU)."""
+    learner: str = "per_agent"
+    """``"fleet"``: every agent's iterations batched into one computation per step (``Team(learner=)``)."""
     threads: int | None = None
     """Torch threads of the evaluation (None: all cores)."""
     checkpoint_every: int = 5
@@ -109,7 +111,8 @@ def run_team(source: Source, record: SourceRecord, config: RunConfig, schedule: 
     # default changed is mapped again, not resumed into a mix of two versions
     forget_stale_checkpoints(out, {**record.settings, "team": as_record(asdict(config.team))})
     team = Team(source.streams(), config.team, source.vocabulary(), seed=config.seed, channel=config.channel,
-                device=config.device, workers=config.workers, processes=config.processes)
+                device=config.device, workers=config.workers, processes=config.processes,
+                learner=config.learner)
     try:
         reports = run_rounds(team, schedule, out / "checkpoints" / "team.pt", config)
     except BaseException:

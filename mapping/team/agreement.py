@@ -8,7 +8,7 @@ A mixin of ``TeamMember``: the state it reads and writes is the member's (``mapp
 from __future__ import annotations
 
 import time
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from typing import Callable, Sequence
 
 import numpy as np
@@ -33,6 +33,18 @@ class PenaltyReading:
 
     def read(self) -> float:
         return 0.0 if self.value is None else float(self.value)
+
+
+@dataclass
+class ConsistencyWork:
+    """Consistency iterations about to run (``Agreement.prepare_consistency``): how many, the extra term
+    each adds to the data loss and the terms they fill in."""
+
+    iterations: int
+    extra: Callable[[], torch.Tensor] | None
+    terms: ConsistencyTerms
+    seconds: float
+    """Its own compute time so far (pairs, mixing, the peers' renderings)."""
 
 
 class Agreement:
@@ -81,6 +93,24 @@ class Agreement:
             listings: DSGD: the peers' ``degree_messages`` that arrived; acknowledged: the peers my own
                 listing reached.
         """
+        work = self.prepare_consistency(ray_messages, round_index, listings, acknowledged)
+        start = time.perf_counter()
+        loss = self.mapper.train(work.iterations, work.extra) if work.iterations else 0.0
+        return self.finish_consistency(work, loss, time.perf_counter() - start)
+
+    def finish_consistency(self, work: ConsistencyWork, loss: float, train_s: float) -> ConsistencyTerms:
+        """The round's consistency terms once ``work.iterations`` were trained (``loss``: the last total,
+        ``train_s``: the seconds they took)."""
+        if work.iterations:
+            work.terms.loss = loss
+        work.terms.seconds = work.seconds + train_s
+        return work.terms
+
+    def prepare_consistency(self, ray_messages: Sequence[RayMessage], round_index: int,
+                            listings: Sequence[DegreeMessage] = (), acknowledged: frozenset[int] = frozenset()
+                            ) -> ConsistencyWork:
+        """``consistency_round`` up to its training: pairs, duals or mixing, the peers' renderings, and the
+        extra term (eq. 12 + 13) every consistency iteration adds to the data loss."""
         c = self.config.consistency
         start = time.perf_counter()
         fresh = self._fresh_round(round_index)
@@ -112,8 +142,7 @@ class Agreement:
         terms = ConsistencyTerms()
         n_pairs = sum(len(p) for p in pairs.values())
         if n_pairs == 0 and not rays:
-            terms.seconds = time.perf_counter() - start
-            return terms
+            return ConsistencyWork(0, None, terms, time.perf_counter() - start)
 
         own_fields, own_labels = self._own_fields()
         observed = self.mapper.keyframes.observes if c.blind_zones_only else None
@@ -145,9 +174,8 @@ class Agreement:
             terms.render, terms.render_rays = float(render.detach()), used
             return total + c.render_weight * render
 
-        terms.loss = self.mapper.train(c.iterations, extra) if c.iterations else 0.0
-        terms.pairs, terms.seconds = n_pairs, time.perf_counter() - start
-        return terms
+        terms.pairs, terms.loss = n_pairs, 0.0
+        return ConsistencyWork(c.iterations, extra, terms, time.perf_counter() - start)
 
     def _fresh_round(self, round_index: int) -> int | None:
         """The round whose vectors DiNNO and DSGD may use (None: any vector held)."""

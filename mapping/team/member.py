@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, replace
-from typing import Protocol, Sequence
+from typing import Callable, Protocol, Sequence
 
 import numpy as np
 import torch
@@ -79,6 +79,20 @@ class LocalReport:
     seconds: float
     parameter: float = 0.0
     """The consensus term (eq. 12) of the last local iteration (``local_consensus``; 0 without)."""
+
+
+@dataclass
+class LocalWork:
+    """A local round between fusion and training (``TeamMember.prepare_local``): how many iterations
+    to train and the extra term (eq. 12's local consensus) each adds to the data loss."""
+
+    frames: list[int]
+    keyframes: int
+    iterations: int
+    extra: Callable[[], torch.Tensor] | None
+    reading: PenaltyReading
+    seconds: float
+    """Its own compute time so far (reading, fusion, keyframes)."""
 
 
 class StreamReader:
@@ -162,6 +176,13 @@ class TeamMember(StreamReader, Outbox, Inbox, Agreement):
     # ---- 1-3: perceive, fuse, local iterations ---------------------------------------------------
     def local_round(self, read: tuple[list, float] | None = None) -> LocalReport:
         """Take the round's frames (``read_round``'s result, read now when None), fuse, train."""
+        work = self.prepare_local(read)
+        start = time.perf_counter()
+        loss = self.mapper.train(work.iterations, work.extra) if work.iterations else 0.0
+        return self.finish_local(work, loss, time.perf_counter() - start)
+
+    def prepare_local(self, read: tuple[list, float] | None = None) -> LocalWork:
+        """``local_round`` up to its training: take the frames, fuse, make keyframes; what to train."""
         read, read_s = self.read_round() if read is None else read
         start = time.perf_counter()
         stop = self.next_frame + len(read)
@@ -178,13 +199,17 @@ class TeamMember(StreamReader, Outbox, Inbox, Agreement):
         keyframes = sum(self.mapper.ingest(frame, image) for frame, image in zip(frames, images))
         reading = PenaltyReading()
         extra = self.local_consensus(reading) if self.config.consistency.local_consensus else None
-        loss = self.mapper.train(keyframes * self.config.mapping.iterations_per_keyframe, extra) if keyframes else 0.0
+        iterations = keyframes * self.config.mapping.iterations_per_keyframe if keyframes else 0
         # a short stream trains the rest once, in the round that read its last frame (a finished member's
         # later rounds read nothing, and a team resumed after this round is past it)
-        if indices and self.done and (rest := self.steps_after_stream()) > 0:
-            loss = self.mapper.train(rest, extra)
-        parameter = reading.read()  # read once, not every step
-        return LocalReport(indices, keyframes, loss - parameter, read_s + time.perf_counter() - start, parameter)
+        if indices and self.done:
+            iterations += self.steps_after_stream()
+        return LocalWork(indices, keyframes, iterations, extra, reading, read_s + time.perf_counter() - start)
+
+    def finish_local(self, work: LocalWork, loss: float, train_s: float) -> LocalReport:
+        """The round's report once its ``work.iterations`` were trained (``loss``: the last one's total)."""
+        parameter = work.reading.read()  # read once, not every step
+        return LocalReport(work.frames, work.keyframes, loss - parameter, work.seconds + train_s, parameter)
 
     def steps_after_stream(self) -> int:
         """Local iterations its keyframes give short of ``TeamConfig.min_local_steps`` (each keyframe gives

@@ -25,6 +25,7 @@ from typing import Sequence
 import numpy as np
 
 from mapping.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
+from mapping.fleet import fleet_train
 from mapping.team.channel import DELIVERED, DROPPED, OVER_BUDGET, Channel
 from mapping.team.config import TeamConfig
 from mapping.team.member import AgentStream, TeamMember, Vocabulary
@@ -32,6 +33,10 @@ from mapping.team.messages import DegreeMessage, ParameterMessage, RayMessage
 from mapping.team.report import (AgentSnapshot, AlignmentCounts, ConsistencyTerms, DeliveryRecord, LossTerms,
                                  RoundReport)
 from mapping.team.state import member_state, restore_member
+
+
+LEARNERS = ("per_agent", "fleet")
+"""How a team's members train: each on its own, or batched together (``mapping.fleet``)."""
 
 
 class PlanError(ValueError):
@@ -95,18 +100,28 @@ class Team:
         processes: None (every member in this process) or ``"ray"``: each member in a Ray actor of its own
             (``mapping.team.remote``; one process per agent, on this machine or a cluster), exchanging only
             serialised messages; the streams stay here. The members are then called side by side.
+        learner: ``"per_agent"`` (each member trains on its own, on the worker threads) or ``"fleet"``
+            (``mapping.fleet``: every member's local and consistency iterations batched into one
+            computation per step, in the calling thread on its torch threads; the same maps to float
+            tolerance; members in this process only). A fleet member's compute seconds count an
+            equal share of the joint steps.
     """
 
     def __init__(self, streams: Sequence[AgentStream], config: TeamConfig, vocabulary: Vocabulary, seed: int = 0,
                  channel: ChannelConfig = ChannelConfig(), device: str = "auto", workers: int = 1,
-                 processes: str | None = None):
+                 processes: str | None = None, learner: str = "per_agent"):
         if not streams:
             raise ValueError("a team needs at least one agent stream")
         if workers < 1:
             raise ValueError(f"workers must be >= 1, got {workers}")
         if processes not in (None, "ray"):
             raise ValueError(f"processes must be None (members in this process) or 'ray', got {processes!r}")
-        self.processes = processes
+        if learner not in LEARNERS:
+            raise ValueError(f"learner must be one of {LEARNERS}, got {learner!r}")
+        if learner == "fleet" and processes:
+            raise ValueError("learner='fleet' batches members in this process: it cannot train members in "
+                             f"processes={processes!r}")
+        self.processes, self.learner = processes, learner
         self.workers = len(streams) if processes else min(workers, len(streams))
         self._pool = None
         self.config, self.seed = config, seed
@@ -144,7 +159,12 @@ class Team:
         plan = plan.validate(n)
         t = self.round_index
         reads = [m.read_round() for m in self.members]  # the streams stay on this thread (GL, encoders)
-        local = self.each_member(lambda m: m.local_round(reads[m.index]))
+        if self.learner == "fleet":
+            works = self.each_member(lambda m: m.prepare_local(reads[m.index]))
+            losses, shared_s = self.fleet_train([w.iterations for w in works], [w.extra for w in works])
+            local = [m.finish_local(w, loss, shared_s) for m, w, loss in zip(self.members, works, losses)]
+        else:
+            local = self.each_member(lambda m: m.local_round(reads[m.index]))
         # ---- exchange -------------------------------------------------------------------------
         start = time.perf_counter()
         sent0, recv0, link0 = self.channel.bytes_sent.copy(), self.channel.bytes_received.copy(), \
@@ -198,6 +218,8 @@ class Team:
         # ---- consistency, each receiver on its own ----------------------------------------------------
         def agree(member: TeamMember) -> ConsistencyTerms:
             k = member.index
+            if self.learner == "fleet":  # prepared here, trained below with the other members
+                return member.prepare_consistency(rays_in[k], t, listings_in[k], frozenset(acknowledged[k]))
             return member.consistency_round(rays_in[k], t, listings_in[k], frozenset(acknowledged[k]))
 
         if self.config.consistency.algorithm == "dsgd":  # the listings cross between arrival and mixing
@@ -207,6 +229,9 @@ class Team:
         else:  # arrival and consistency in one pass per member: the order every other figure was made in
             both = self.each_member(lambda m: (receive(m), agree(m)))
             arrivals, agreed = [b[0] for b in both], [b[1] for b in both]
+        if self.learner == "fleet":
+            losses, shared_s = self.fleet_train([w.iterations for w in agreed], [w.extra for w in agreed])
+            agreed = [m.finish_consistency(w, loss, shared_s) for m, w, loss in zip(self.members, agreed, losses)]
         alignment, losses, consistency_s = {}, {}, []
         for member, (counts, arrival_s), terms in zip(self.members, arrivals, agreed):
             alignment[member.name] = counts
@@ -227,6 +252,13 @@ class Team:
             over_budget=statuses.count(OVER_BUDGET), deliveries=deliveries, alignment=alignment, losses=losses,
             local_s=[r.seconds for r in local], consistency_s=consistency_s, exchange_s=max(exchange_s, 0.0),
             done=self.done, agents=snapshots)
+
+    def fleet_train(self, iterations: list[int], extras: list) -> tuple[list[float], float]:
+        """Every member's iterations batched (``mapping.fleet.fleet_train``) in the calling thread, on the
+        caller's torch threads; each member's last loss, and each one's equal share of the seconds."""
+        start = time.perf_counter()
+        losses = fleet_train([m.mapper for m in self.members], iterations, extras)
+        return losses, (time.perf_counter() - start) / self.num_agents
 
     def snapshots(self, new_frames: Sequence[Sequence] | None = None) -> list[AgentSnapshot]:
         """Each agent's own knowledge now (``new_frames[i]``: the frames agent i read in the last round;
@@ -304,4 +336,4 @@ class Team:
         return data["extra"]
 
 
-__all__ = ["ChannelConfig", "PlanError", "RoundPlan", "RoundReport", "Team"]
+__all__ = ["LEARNERS", "ChannelConfig", "PlanError", "RoundPlan", "RoundReport", "Team"]

@@ -13,6 +13,7 @@ from dataclasses import dataclass, fields, replace
 from mapping.runtime import available_cores
 from mapping.team import ChannelConfig, ExchangeConfig, TeamConfig
 from mapping.team.consistency import CONSISTENCY_ALGORITHMS
+from mapping.team.team import LEARNERS
 from openmulti_env.presets import PRESET_NAMES, Preset, get_preset
 from openmulti_env.world.world import MAX_AGENTS, WorldConfig
 
@@ -96,6 +97,9 @@ class EnvConfig:
     agent_workers: int | None = None
     """Threads running the agents' learning side by side (None: one per core, at most one per agent);
     results do not depend on it."""
+    learner: str = "per_agent"
+    """``per_agent``: each agent trains on its own (on the worker threads); ``fleet``: every agent's steps
+    batched into one computation (``mapping.fleet``; the same maps to float tolerance)."""
     agent_processes: str | None = None
     """``"ray"``: each agent's mapper in a process of its own (a Ray actor, ``mapping.team.remote``; the same
     maps and bytes on CPU); None: every agent in the env's process."""
@@ -127,6 +131,10 @@ class EnvConfig:
             raise ValueError(f"agent_workers must be >= 1 or None, got {self.agent_workers}")
         if self.agent_processes not in (None, "ray"):
             raise ValueError(f"agent_processes must be None or 'ray', got {self.agent_processes!r}")
+        if self.learner not in LEARNERS:
+            raise ValueError(f"learner must be one of {LEARNERS}, got {self.learner!r}")
+        if self.learner == "fleet" and self.agent_processes:
+            raise ValueError("learner='fleet' batches agents in the env's process: not with agent_processes")
         if self.map_size < 8:
             raise ValueError(f"map_size must be at least 8 pixels, got {self.map_size}")
         return self

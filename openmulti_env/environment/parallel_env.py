@@ -190,7 +190,7 @@ class OpenMultiParallelEnv(ParallelEnv, EzPickle):
             self.team = None
         self.team = Team(streams, cfg.team_config(), self._vocabulary, seed=episode_seed,
                          channel=cfg.channel_config(), device=cfg.device, workers=cfg.workers(),
-                         processes=cfg.agent_processes)
+                         processes=cfg.agent_processes, learner=cfg.learner)
         self._snapshots = self.team.snapshots()
         self.agents = list(self.possible_agents)
         self.steps = 0

@@ -107,7 +107,8 @@ def cmd_run(args: argparse.Namespace) -> int:
                         comm_budget_mb=args.comm_budget_mb, consistency=args.consistency,
                         missing_edges=args.missing_edges, cross_rendering=args.cross_rendering,
                         float16=args.float16, changed_only=args.changed_only, threads=args.threads,
-                        workers=args.workers, processes=args.processes, holdout_every=args.holdout_every)
+                        workers=args.workers, processes=args.processes, holdout_every=args.holdout_every,
+                        learner=args.learner)
     what = f"scene {args.scene}" if args.data is None else f"data {args.data}"
     print(f"[openmulti] {what}, {args.agents} agents, preset {args.preset}, seed {args.seed}, "
           f"policy {policy}, alignment {args.alignment}, consistency {args.consistency}"
@@ -239,6 +240,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="ray: every agent maps in a process of its own (a Ray actor, here or on the cluster of "
                         "RAY_ADDRESS), exchanging only serialised messages; the same maps on CPU. Needs "
                         "pip install 'openmulti[ray]'")
+    p.add_argument("--learner", choices=("per_agent", "fleet"), default="per_agent",
+                   help="fleet: every agent's training steps batched into one computation per step (one large "
+                        "kernel on a GPU; pair with --threads on a CPU); the same maps to float tolerance")
     p.add_argument("--clip-checkpoint", metavar="PATH",
                    help="local open_clip checkpoint: masks get visual features (optional extra openmulti[clip])")
     p.add_argument("--perfect-masks", action="store_true",

@@ -42,7 +42,8 @@ def run(scene: str, agents: int, policy: str, preset: str, seed: int, out: Path,
         global_map: bool = False, global_width: int = GLOBAL_WIDTH,
         global_encoding_scale: float = GLOBAL_ENCODING_SCALE, share_point_clouds: bool = False,
         three_cullings: bool = False, plots: bool = True, workers: int | None = None,
-        missing_edges: str = "skip", processes: str | None = None, holdout_every: int | None = None) -> dict:
+        missing_edges: str = "skip", processes: str | None = None, holdout_every: int | None = None,
+        learner: str = "per_agent") -> dict:
     """A team run on the simulated ``scene``; returns the metrics written to ``out/metrics.json``.
 
     Args:
@@ -59,6 +60,8 @@ def run(scene: str, agents: int, policy: str, preset: str, seed: int, out: Path,
             use the ``last`` one held (``ConsistencyConfig.missing_edges``).
         processes: None (every agent in this process) or ``ray`` (each agent in a Ray actor of its own:
             ``mapping.team.remote``).
+        learner: ``per_agent`` or ``fleet`` (every agent's iterations batched into one computation per step,
+            ``mapping.fleet``, on ``threads`` torch threads; the same maps to float tolerance).
         holdout_every: keep every k-th frame of each agent out of its map and score the map's depth there
             (``depth_heldout_*``; ``TeamConfig.holdout_every``).
         float16, changed_only: what parameter messages carry (``ExchangeConfig``).
@@ -101,6 +104,7 @@ def run(scene: str, agents: int, policy: str, preset: str, seed: int, out: Path,
     config = RunConfig(Path(out), team, team_channel(scripted, comm_budget_mb), seed=seed, device=device,
                        workers=workers, threads=threads, checkpoint_every=checkpoint_every, max_rounds=max_rounds,
                        three_cullings=three_cullings, plots=plots, progress=progress, processes=processes,
+                       learner=learner,
                        title=f"{world.scene.name}: policy {policy}")
     try:
         observer = None
@@ -119,7 +123,7 @@ def run_data(data: str | Path, agents: int, policy: str, preset: str, seed: int,
              cross_rendering: bool = True, float16: bool = False, changed_only: float | None = None,
              threads: int | None = None, checkpoint_every: int = 5, progress: bool = True,
              max_rounds: int | None = None, workers: int | None = None, missing_edges: str = "skip",
-             processes: str | None = None, holdout_every: int | None = None) -> dict:
+             processes: str | None = None, holdout_every: int | None = None, learner: str = "per_agent") -> dict:
     """A team run on a real RGB-D data set split into ``agents`` contiguous sequences; returns the metrics
     written to ``out/metrics.json``.
 
@@ -151,7 +155,8 @@ def run_data(data: str | Path, agents: int, policy: str, preset: str, seed: int,
                            holdout_every=holdout_every)
     config = RunConfig(Path(out), team, team_channel(scripted, comm_budget_mb), seed=seed, device=device,
                        workers=workers, threads=threads, checkpoint_every=checkpoint_every, max_rounds=max_rounds,
-                       progress=progress, processes=processes, title=f"{inputs.name}: policy {policy}")
+                       progress=progress, processes=processes, learner=learner,
+                       title=f"{inputs.name}: policy {policy}")
     return run_team(source, record, config, PolicySchedule(scripted), start=begun.start).as_json()
 
 
