@@ -72,10 +72,13 @@ def main() -> int:
     parser.add_argument("--preset", default="rl_tiny", help="env preset (default: rl_tiny)")
     parser.add_argument("--seed", type=int, default=11, help="episode seed given to reset (default: 11)")
     parser.add_argument("--action-seed", type=int, default=2, help="seed of the random actions (default: 2)")
+    parser.add_argument("--learner", default="per_agent", choices=("per_agent", "fleet"),
+                        help="the env's learner (fleet: every agent's steps batched; default per_agent)")
     parser.add_argument("--json", help="also write the fingerprint to this JSON file")
     parser.add_argument("--expect", help="a fingerprint JSON to compare with; exit 1 when the hash differs")
     args = parser.parse_args()
-    result = episode_fingerprint(args.preset, args.seed, args.action_seed)
+    overrides = {"learner": args.learner} if args.learner != "per_agent" else {}
+    result = episode_fingerprint(args.preset, args.seed, args.action_seed, **overrides)
     print(json.dumps(result, indent=2))
     if args.json:
         with open(args.json, "w") as fh:

@@ -161,8 +161,8 @@ class Team:
         reads = [m.read_round() for m in self.members]  # the streams stay on this thread (GL, encoders)
         if self.learner == "fleet":
             works = self.each_member(lambda m: m.prepare_local(reads[m.index]))
-            losses, shared_s = self.fleet_train([w.iterations for w in works], [w.extra for w in works])
-            local = [m.finish_local(w, loss, shared_s) for m, w, loss in zip(self.members, works, losses)]
+            trained, shared_s = self.fleet_train([w.iterations for w in works], [w.extra for w in works])
+            local = [m.finish_local(w, loss, shared_s) for m, w, loss in zip(self.members, works, trained)]
         else:
             local = self.each_member(lambda m: m.local_round(reads[m.index]))
         # ---- exchange -------------------------------------------------------------------------
@@ -230,8 +230,8 @@ class Team:
             both = self.each_member(lambda m: (receive(m), agree(m)))
             arrivals, agreed = [b[0] for b in both], [b[1] for b in both]
         if self.learner == "fleet":
-            losses, shared_s = self.fleet_train([w.iterations for w in agreed], [w.extra for w in agreed])
-            agreed = [m.finish_consistency(w, loss, shared_s) for m, w, loss in zip(self.members, agreed, losses)]
+            trained, shared_s = self.fleet_train([w.iterations for w in agreed], [w.extra for w in agreed])
+            agreed = [m.finish_consistency(w, loss, shared_s) for m, w, loss in zip(self.members, agreed, trained)]
         alignment, losses, consistency_s = {}, {}, []
         for member, (counts, arrival_s), terms in zip(self.members, arrivals, agreed):
             alignment[member.name] = counts
