@@ -95,12 +95,18 @@ def test_team_run_writes_metrics_answers_queries_and_resumes(capsys, tmp_path):
 def test_every_scripted_policy_runs_rounds_on_the_tiny_world(policy, tmp_path):
     from openmulti_env.runs.run import run
 
-    result = run("tiny", 3, policy, "tiny", 0, tmp_path / policy.replace(":", "_"), device="cpu",
-                 comm_budget_mb=1.0 if policy == "budget" else None, progress=False, max_rounds=2, plots=False,
-                 learner="fleet" if policy == "round_robin" else "per_agent")  # the fleet learner's run path too
-    assert result["rounds"] == 2
+    out = tmp_path / policy.replace(":", "_")
+    options = dict(device="cpu", comm_budget_mb=1.0 if policy == "budget" else None, progress=False, max_rounds=2,
+                   plots=False, learner="fleet" if policy == "round_robin" else "per_agent")  # the fleet's path too
+    result = run("tiny", 3, policy, "tiny", 0, out, evaluate=False, **options)  # bytes and messages need no scores
+    assert result["rounds"] == 2 and result["evaluated"] is False and result["agents"] == {} == result["mean"]
+    assert json.loads((out / "metrics.json").read_text())["evaluated"] is False
     if policy == "never":
         assert result["bytes_sent_total"] == 0
+        scored = run("tiny", 3, policy, "tiny", 0, out, **options)  # the same call scores: it resumes, maps nothing
+        assert scored["evaluated"] is True and set(scored["agents"]) == {"agent_0", "agent_1", "agent_2"}
+        assert scored["rounds"] == 2 and scored["bytes_per_round"] == result["bytes_per_round"]
+        assert 0.0 < scored["mean"]["comp_ratio"] <= 100.0
     if policy == "bernoulli:0.5":
         assert result["messages"]["dropped"] > 0
     if policy == "budget":
@@ -117,3 +123,13 @@ def test_observation_policies_are_refused_on_data_sets_with_the_reason(tmp_path)
 
     with pytest.raises(ValueError, match="reads observations"):
         run_data(tmp_path, 2, "novelty", "tiny", 0, tmp_path / "out")
+
+
+def test_run_without_evaluation_prints_what_the_rounds_cost(capsys, tmp_path):
+    args = ["run", "--scene", "tiny", "--agents", "2", "--preset", "tiny", "--policy", "always", "--out",
+            str(tmp_path / "map"), "--device", "cpu", "--no-evaluation"]
+    assert main(args) == 0
+    printed = capsys.readouterr().out
+    assert "6 rounds;" in printed and "Not evaluated" in printed and "comp ratio" not in printed
+    assert (tmp_path / "map" / "checkpoints" / "team.pt").is_file()
+    assert not (tmp_path / "map" / "meshes").exists()

@@ -39,6 +39,10 @@ METRICS_NOTE = ("Per-agent metrics: each agent's own map against the whole groun
                 "slowest consistency phase, summed.")
 
 
+NOT_EVALUATED_NOTE = ("Not evaluated (--no-evaluation): only what the rounds cost. The same command without it "
+                      "resumes after the last round and scores the maps.")
+
+
 @dataclass
 class RunConfig:
     """How a run goes, beyond what its source and team settings say."""
@@ -65,6 +69,9 @@ class RunConfig:
     three_cullings: bool = False
     """Also score NICE-SLAM-culled (where the source has the cameras) and unculled."""
     plots: bool = True
+    evaluate: bool = True
+    """False: map only (rounds, bytes, the final checkpoint); the same command again with it scores the maps
+    (it resumes after the last round, so only the evaluation runs)."""
     progress: bool = True
     title: str = ""
     """Title of the pictures (e.g. the scene and policy)."""
@@ -92,6 +99,8 @@ class RunResult:
     notes: str
     extra: dict = field(default_factory=dict)
     """Source-specific fields (e.g. ``map``, ``ground_truth``, ``masks``)."""
+    evaluated: bool = True
+    """False: the maps were not scored (``RunConfig.evaluate``); ``agents``, ``mean`` and ``team`` are empty."""
 
     def as_json(self) -> dict:
         """``metrics.json``."""
@@ -121,15 +130,15 @@ def run_team(source: Source, record: SourceRecord, config: RunConfig, schedule: 
     finally:
         team.close()  # the worker threads (the team stays usable for evaluation)
     set_threads(config.threads)  # evaluation runs on this thread alone: give it every core again
-    gt = source.ground_truth(config.seed)
+    gt = source.ground_truth(config.seed) if config.evaluate else None
     try:
-        scores = evaluate_team(source, record, gt, team, config)
+        scores = evaluate_team(source, record, gt, team, config) if gt else {"agents": {}, "mean": {}, "team": {}}
     finally:
         team.release()  # member processes end once their maps are copied here
+    note = METRICS_NOTE.format(culling=gt.culling_note) if gt else NOT_EVALUATED_NOTE
     result = RunResult(**scores, **round_costs(team, reports), wall_s=time.perf_counter() - start,
                        config={**record.settings, **record.described, "team": plain(asdict(config.team))},
-                       notes=" ".join(record.notes + [METRICS_NOTE.format(culling=gt.culling_note)]),
-                       extra=record.results)
+                       notes=" ".join(record.notes + [note]), extra=record.results, evaluated=config.evaluate)
     write_outputs(out, result, reports, config)
     return result
 

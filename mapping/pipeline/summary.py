@@ -15,6 +15,12 @@ def _fmt(x: float | None) -> str:
 def results_table(result: RunResult, out: Path) -> list[str]:
     """Accuracy, completion, completion ratio, F-mIoU / F-mAcc, instances and compute per agent, their
     mean, all maps' semantics; bytes, messages and fleet time; what was written."""
+    if not result.evaluated:
+        return [f"{result.rounds} rounds; {result.bytes_sent_total / 1e6:.2f} MB sent; messages delivered "
+                f"{result.messages['delivered']}, dropped {result.messages['dropped']}, over budget "
+                f"{result.messages['over_budget']}; fleet time {result.fleet_s:.1f} s. Not evaluated: run the same "
+                "command without --no-evaluation to score the maps (it resumes after the last round).",
+                f"Wrote {out}/metrics.json, {out}/rounds.json, {out}/checkpoints/ in {result.wall_s:.1f} s"]
     lines = [f"{'agent':<10} {'acc [cm]':>9} {'comp [cm]':>10} {'comp ratio [%]':>15} {'F-mIoU':>7} {'F-mAcc':>7} "
              f"{'depth err [cm]':>15} {'depth off [%]':>14} {'instances':>10} {'compute [s]':>12}"]
     for name, m in result.agents.items():

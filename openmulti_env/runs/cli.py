@@ -108,7 +108,7 @@ def cmd_run(args: argparse.Namespace) -> int:
                         missing_edges=args.missing_edges, cross_rendering=args.cross_rendering,
                         float16=args.float16, changed_only=args.changed_only, threads=args.threads,
                         workers=args.workers, processes=args.processes, holdout_every=args.holdout_every,
-                        learner=args.learner)
+                        learner=args.learner, evaluate=not args.no_evaluation)
     what = f"scene {args.scene}" if args.data is None else f"data {args.data}"
     print(f"[openmulti] {what}, {args.agents} agents, preset {args.preset}, seed {args.seed}, "
           f"policy {policy}, alignment {args.alignment}, consistency {args.consistency}"
@@ -243,6 +243,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--learner", choices=("per_agent", "fleet"), default="per_agent",
                    help="fleet: every agent's training steps batched into one computation per step (one large "
                         "kernel on a GPU; pair with --threads on a CPU); the same maps to float tolerance")
+    p.add_argument("--no-evaluation", action="store_true",
+                   help="map only: rounds, bytes and the final checkpoint, no meshes or scores; the same command "
+                        "without it resumes after the last round and scores the maps")
     p.add_argument("--clip-checkpoint", metavar="PATH",
                    help="local open_clip checkpoint: masks get visual features (optional extra openmulti[clip])")
     p.add_argument("--perfect-masks", action="store_true",

@@ -43,7 +43,7 @@ def run(scene: str, agents: int, policy: str, preset: str, seed: int, out: Path,
         global_encoding_scale: float = GLOBAL_ENCODING_SCALE, share_point_clouds: bool = False,
         three_cullings: bool = False, plots: bool = True, workers: int | None = None,
         missing_edges: str = "skip", processes: str | None = None, holdout_every: int | None = None,
-        learner: str = "per_agent") -> dict:
+        learner: str = "per_agent", evaluate: bool = True) -> dict:
     """A team run on the simulated ``scene``; returns the metrics written to ``out/metrics.json``.
 
     Args:
@@ -74,6 +74,8 @@ def run(scene: str, agents: int, policy: str, preset: str, seed: int, out: Path,
         share_point_clouds: "send parameters" links carry the observed points instead (Table VI).
         three_cullings: also score every map NICE-SLAM-culled and unculled (``mapping.pipeline.scoring``).
         plots: write the pictures (the experiments skip them: they cost seconds per run).
+        evaluate: False maps only (rounds, bytes, final checkpoint; ``RunConfig.evaluate``): the same call
+            again with True resumes after the last round and scores.
         workers: agents trained side by side on threads (same results as 1). Default: one per core when
             ``threads`` is not given (each with 1 torch thread: small batches use one core better than
             two), else 1.
@@ -104,7 +106,7 @@ def run(scene: str, agents: int, policy: str, preset: str, seed: int, out: Path,
     config = RunConfig(Path(out), team, team_channel(scripted, comm_budget_mb), seed=seed, device=device,
                        workers=workers, threads=threads, checkpoint_every=checkpoint_every, max_rounds=max_rounds,
                        three_cullings=three_cullings, plots=plots, progress=progress, processes=processes,
-                       learner=learner,
+                       learner=learner, evaluate=evaluate,
                        title=f"{world.scene.name}: policy {policy}")
     try:
         observer = None
@@ -123,7 +125,8 @@ def run_data(data: str | Path, agents: int, policy: str, preset: str, seed: int,
              cross_rendering: bool = True, float16: bool = False, changed_only: float | None = None,
              threads: int | None = None, checkpoint_every: int = 5, progress: bool = True,
              max_rounds: int | None = None, workers: int | None = None, missing_edges: str = "skip",
-             processes: str | None = None, holdout_every: int | None = None, learner: str = "per_agent") -> dict:
+             processes: str | None = None, holdout_every: int | None = None, learner: str = "per_agent",
+             evaluate: bool = True) -> dict:
     """A team run on a real RGB-D data set split into ``agents`` contiguous sequences; returns the metrics
     written to ``out/metrics.json``.
 
@@ -155,7 +158,7 @@ def run_data(data: str | Path, agents: int, policy: str, preset: str, seed: int,
                            holdout_every=holdout_every)
     config = RunConfig(Path(out), team, team_channel(scripted, comm_budget_mb), seed=seed, device=device,
                        workers=workers, threads=threads, checkpoint_every=checkpoint_every, max_rounds=max_rounds,
-                       progress=progress, processes=processes, learner=learner,
+                       progress=progress, processes=processes, learner=learner, evaluate=evaluate,
                        title=f"{inputs.name}: policy {policy}")
     return run_team(source, record, config, PolicySchedule(scripted), start=begun.start).as_json()
 
