@@ -98,4 +98,4 @@ def joint_evaluation(agents: Sequence[MappingAgent], batches: Sequence[Sequence[
     return outputs  # type: ignore[return-value]
 
 
-__all__ = ["fleet_step", "fleet_train", "joint_evaluation"]
+__all__ = ["ExtraLoss", "fleet_step", "fleet_train", "joint_evaluation"]

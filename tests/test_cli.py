@@ -92,7 +92,7 @@ def test_team_run_writes_metrics_answers_queries_and_resumes(capsys, tmp_path):
 
 
 @pytest.mark.parametrize("policy", ["never", "round_robin", "bernoulli:0.5", "budget", "every:2", "novelty"])
-def test_every_scripted_policy_runs_rounds_on_the_tiny_world(policy, tmp_path):
+def test_every_scripted_policy_runs_rounds_on_the_tiny_world(policy, tmp_path, capsys):
     from openmulti_env.runs.run import run
 
     out = tmp_path / policy.replace(":", "_")
@@ -103,7 +103,10 @@ def test_every_scripted_policy_runs_rounds_on_the_tiny_world(policy, tmp_path):
     assert json.loads((out / "metrics.json").read_text())["evaluated"] is False
     if policy == "never":
         assert result["bytes_sent_total"] == 0
+        assert main(["query", "--run", str(out), "the bed"]) == 2  # no code books before scoring, and it says why
+        assert "--no-evaluation" in capsys.readouterr().err
         scored = run("tiny", 3, policy, "tiny", 0, out, **options)  # the same call scores: it resumes, maps nothing
+        assert "resumed the team after round 2" in capsys.readouterr().out
         assert scored["evaluated"] is True and set(scored["agents"]) == {"agent_0", "agent_1", "agent_2"}
         assert scored["rounds"] == 2 and scored["bytes_per_round"] == result["bytes_per_round"]
         assert 0.0 < scored["mean"]["comp_ratio"] <= 100.0

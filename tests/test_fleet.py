@@ -75,9 +75,12 @@ def test_fleet_train_runs_each_agents_own_count_of_steps(tiny_world):
     agents = _trained_pair(tiny_world)
     alone = [_copy(a) for a in agents]
     together = [_copy(a) for a in agents]
-    expected = [alone[0].train(3), 0.0]  # the second agent trains nothing
-    got = fleet_train(together, [3, 0])
-    assert got[0] == pytest.approx(expected[0], rel=1e-5) and got[1] == 0.0
+    expected = [alone[0].train(3), alone[1].train(5)]  # the second agent goes on alone for two steps
+    got = fleet_train(together, [3, 5])
+    assert got == pytest.approx(expected, rel=1e-5)
+    idle = _copy(agents[1])
+    assert fleet_train([_copy(agents[0]), idle], [2, 0])[1] == 0.0 and idle.steps == agents[1].steps
+    torch.testing.assert_close(idle.banks["object"].params, agents[1].banks["object"].params, rtol=0, atol=0)
     assert [a.steps for a in together] == [a.steps for a in alone]
     for mine, ref in zip(together, alone):
         for name in ref.banks:

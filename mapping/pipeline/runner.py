@@ -132,10 +132,11 @@ def run_team(source: Source, record: SourceRecord, config: RunConfig, schedule: 
     set_threads(config.threads)  # evaluation runs on this thread alone: give it every core again
     gt = source.ground_truth(config.seed) if config.evaluate else None
     try:
-        scores = evaluate_team(source, record, gt, team, config) if gt else {"agents": {}, "mean": {}, "team": {}}
+        scores = (evaluate_team(source, record, gt, team, config) if gt is not None
+                  else {"agents": {}, "mean": {}, "team": {}})
     finally:
         team.release()  # member processes end once their maps are copied here
-    note = METRICS_NOTE.format(culling=gt.culling_note) if gt else NOT_EVALUATED_NOTE
+    note = METRICS_NOTE.format(culling=gt.culling_note) if gt is not None else NOT_EVALUATED_NOTE
     result = RunResult(**scores, **round_costs(team, reports), wall_s=time.perf_counter() - start,
                        config={**record.settings, **record.described, "team": plain(asdict(config.team))},
                        notes=" ".join(record.notes + [note]), extra=record.results, evaluated=config.evaluate)
@@ -163,7 +164,9 @@ def run_rounds(team: Team, schedule: Schedule, checkpoint: Path, config: RunConf
             bar.set_postfix(MB=f"{sum(report.bytes_sent) / 1e6:.1f}", fleet_s=f"{report.fleet_s:.1f}",
                             instances=sum(s.instances for s in snapshots))
             bar.update(1)
-            if every and (team.round_index % every == 0 or team.round_index == total):
+            last = team.round_index == total
+            if (every and (team.round_index % every == 0 or last)) or (last and not config.evaluate):
+                # a run that is not evaluated keeps its last round whatever checkpoint_every says: scoring resumes it
                 team.save(checkpoint, extra={"reports": reports})
     return reports
 

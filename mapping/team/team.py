@@ -25,7 +25,7 @@ from typing import Sequence
 import numpy as np
 
 from mapping.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
-from mapping.fleet import fleet_train
+from mapping.fleet import ExtraLoss, fleet_train
 from mapping.team.channel import DELIVERED, DROPPED, OVER_BUDGET, Channel
 from mapping.team.config import TeamConfig
 from mapping.team.member import AgentStream, TeamMember, Vocabulary
@@ -103,8 +103,8 @@ class Team:
         learner: ``"per_agent"`` (each member trains on its own, on the worker threads) or ``"fleet"``
             (``mapping.fleet``: every member's local and consistency iterations batched into one
             computation per step, in the calling thread on its torch threads; the same maps to float
-            tolerance; members in this process only). A fleet member's compute seconds count an
-            equal share of the joint steps.
+            tolerance; members in this process only). A fleet member's compute seconds count a share
+            of the joint steps in proportion to its iterations.
     """
 
     def __init__(self, streams: Sequence[AgentStream], config: TeamConfig, vocabulary: Vocabulary, seed: int = 0,
@@ -162,7 +162,7 @@ class Team:
         if self.learner == "fleet":
             works = self.each_member(lambda m: m.prepare_local(reads[m.index]))
             trained, shared_s = self.fleet_train([w.iterations for w in works], [w.extra for w in works])
-            local = [m.finish_local(w, loss, shared_s) for m, w, loss in zip(self.members, works, trained)]
+            local = [m.finish_local(w, loss, s) for m, w, loss, s in zip(self.members, works, trained, shared_s)]
         else:
             local = self.each_member(lambda m: m.local_round(reads[m.index]))
         # ---- exchange -------------------------------------------------------------------------
@@ -231,7 +231,8 @@ class Team:
             arrivals, agreed = [b[0] for b in both], [b[1] for b in both]
         if self.learner == "fleet":
             trained, shared_s = self.fleet_train([w.iterations for w in agreed], [w.extra for w in agreed])
-            agreed = [m.finish_consistency(w, loss, shared_s) for m, w, loss in zip(self.members, agreed, trained)]
+            agreed = [m.finish_consistency(w, loss, s)
+                      for m, w, loss, s in zip(self.members, agreed, trained, shared_s)]
         alignment, losses, consistency_s = {}, {}, []
         for member, (counts, arrival_s), terms in zip(self.members, arrivals, agreed):
             alignment[member.name] = counts
@@ -253,12 +254,14 @@ class Team:
             local_s=[r.seconds for r in local], consistency_s=consistency_s, exchange_s=max(exchange_s, 0.0),
             done=self.done, agents=snapshots)
 
-    def fleet_train(self, iterations: list[int], extras: list) -> tuple[list[float], float]:
+    def fleet_train(self, iterations: list[int], extras: list[ExtraLoss]) -> tuple[list[float], list[float]]:
         """Every member's iterations batched (``mapping.fleet.fleet_train``) in the calling thread, on the
-        caller's torch threads; each member's last loss, and each one's equal share of the seconds."""
+        caller's torch threads; each member's last loss, and its share of the seconds (by its iterations)."""
         start = time.perf_counter()
         losses = fleet_train([m.mapper for m in self.members], iterations, extras)
-        return losses, (time.perf_counter() - start) / self.num_agents
+        seconds = time.perf_counter() - start
+        total = sum(iterations)
+        return losses, [seconds * n / total if total else 0.0 for n in iterations]
 
     def snapshots(self, new_frames: Sequence[Sequence] | None = None) -> list[AgentSnapshot]:
         """Each agent's own knowledge now (``new_frames[i]``: the frames agent i read in the last round;

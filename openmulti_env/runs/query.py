@@ -68,6 +68,10 @@ def load_run_codebooks(run_dir: Path) -> dict[str, CodeBook]:
     folder = run_dir / "codebook"
     names = sorted((p.stem for p in folder.glob("agent_*.json")), key=_agent_index)
     if not names:
+        metrics = run_dir / "metrics.json"
+        if metrics.is_file() and json.loads(metrics.read_text()).get("evaluated") is False:
+            raise CodeBookError(f"{run_dir} was mapped with --no-evaluation: it has no code books yet; run the same "
+                                "command without --no-evaluation to score the maps and write them")
         raise CodeBookError(f"no code book in {folder} (expected agent_K.json + agent_K.npz): was the run made with the perception front end?")
     return {name: CodeBook.load(folder, name) for name in names}
 
