@@ -16,10 +16,8 @@ def results_table(result: RunResult, out: Path) -> list[str]:
     """Accuracy, completion, completion ratio, F-mIoU / F-mAcc, instances and compute per agent, their
     mean, all maps' semantics; bytes, messages and fleet time; what was written."""
     if not result.evaluated:
-        return [f"{result.rounds} rounds; {result.bytes_sent_total / 1e6:.2f} MB sent; messages delivered "
-                f"{result.messages['delivered']}, dropped {result.messages['dropped']}, over budget "
-                f"{result.messages['over_budget']}; fleet time {result.fleet_s:.1f} s. Not evaluated: run the same "
-                "command without --no-evaluation to score the maps (it resumes after the last round).",
+        return [costs_line(result), "Not evaluated: run the same command without --no-evaluation to score the maps "
+                "(it resumes after the last round).",
                 f"Wrote {out}/metrics.json, {out}/rounds.json, {out}/checkpoints/ in {result.wall_s:.1f} s"]
     lines = [f"{'agent':<10} {'acc [cm]':>9} {'comp [cm]':>10} {'comp ratio [%]':>15} {'F-mIoU':>7} {'F-mAcc':>7} "
              f"{'depth err [cm]':>15} {'depth off [%]':>14} {'instances':>10} {'compute [s]':>12}"]
@@ -40,11 +38,16 @@ def results_table(result: RunResult, out: Path) -> list[str]:
                      + (" (semantics are geometric only)" if masks == "geometric" else ""))
     lines.append(f"depth err / off: each map ray cast from every {DEPTH_CHECK_EVERY}th of its agent's input poses against "
                  "the sensor depth: median error, and % of valid pixels off by > 5 cm or with no surface")
-    msgs = result.messages
-    lines += ["", f"{result.rounds} rounds; {result.bytes_sent_total / 1e6:.2f} MB sent "
-              f"({result.bytes_per_round_per_agent_mean / 1e6:.2f} MB per round per agent); messages delivered "
-              f"{msgs['delivered']}, dropped {msgs['dropped']}, over budget {msgs['over_budget']}; "
-              f"fleet time {result.fleet_s:.1f} s",
+    lines += ["", costs_line(result),
               f"Wrote {out}/metrics.json, {out}/rounds.json, {out}/meshes/, {out}/codebook/, {out}/plots/ in "
               f"{result.wall_s:.1f} s; try: openmulti query --run {out} \"somewhere to sit\""]
     return lines
+
+
+def costs_line(result: RunResult) -> str:
+    """What the rounds cost: rounds, bytes, messages, fleet time."""
+    msgs = result.messages
+    return (f"{result.rounds} rounds; {result.bytes_sent_total / 1e6:.2f} MB sent "
+            f"({result.bytes_per_round_per_agent_mean / 1e6:.2f} MB per round per agent); messages delivered "
+            f"{msgs['delivered']}, dropped {msgs['dropped']}, over budget {msgs['over_budget']}; "
+            f"fleet time {result.fleet_s:.1f} s")

@@ -199,7 +199,7 @@ class TeamMember(StreamReader, Outbox, Inbox, Agreement):
         keyframes = sum(self.mapper.ingest(frame, image) for frame, image in zip(frames, images))
         reading = PenaltyReading()
         extra = self.local_consensus(reading) if self.config.consistency.local_consensus else None
-        iterations = keyframes * self.config.mapping.iterations_per_keyframe if keyframes else 0
+        iterations = keyframes * self.config.mapping.iterations_per_keyframe
         # a short stream trains the rest once, in the round that read its last frame (a finished member's
         # later rounds read nothing, and a team resumed after this round is past it)
         if indices and self.done:
