@@ -27,6 +27,8 @@ from mapping.instances import ExportedInstance, InstanceFrame, InstanceSlot
 from mapping.optim import AdamConfig, StackedAdam
 from mapping.keyframes import InstanceRays, KeyframeBuffer
 from mapping.losses import data_loss, free_space_loss
+from mapping.sdf_field import SdfFieldBank
+from mapping.sdf_loss import SdfSamples, sdf_samples, sdf_step_loss
 from mapping.runtime import flushed_denormals, resolve_device
 from mapping.render import (CompositeConfig, CompositeRender, RayBundle, RaySamples, ray_aabb, render_image,
                             render_occupancy, sample_along_rays)
@@ -52,6 +54,16 @@ class TrainingBatch:
         return self.samples.positions.reshape(n, r * s, 3)
 
 
+@dataclass
+class SdfBatch:
+    """A MACIM scene network's part of a training step (``MappingConfig.structure_sdf``): the samples of
+    its rays with valid depth, and their distance bounds (``mapping.sdf_loss``)."""
+
+    bank: str
+    row: int
+    samples: SdfSamples
+
+
 class MappingAgent:
     """Instance-level implicit map of one agent.
 
@@ -74,11 +86,17 @@ class MappingAgent:
         # ``init_generator`` (CPU) draws initial networks, so a seed gives the same network anywhere.
         self.generator = torch.Generator(device=self.device).manual_seed(seed)
         self.init_generator = torch.Generator().manual_seed(seed)
+        structure = replace(STRUCTURE_FIELD, hidden_width=self.config.structure_width,
+                            encoding_scale=self.config.structure_encoding_scale)
+        sdf = self.config.structure_sdf
         self.banks = {"object": InstanceFieldBank(OBJECT_FIELD, self.device),
-                      "structure": InstanceFieldBank(replace(STRUCTURE_FIELD, hidden_width=self.config.structure_width,
-                                                             encoding_scale=self.config.structure_encoding_scale),
-                                                     self.device)}
-        self.optimisers = {name: StackedAdam(bank, AdamConfig(lr=self.config.lr)) for name, bank in self.banks.items()}
+                      "structure": InstanceFieldBank(structure, self.device) if sdf is None else SdfFieldBank(
+                          replace(structure, hidden_width=sdf.width, occupancy_sharpness=sdf.occupancy_sharpness),
+                          sdf, self.device)}
+        adam = {name: AdamConfig(lr=self.config.lr) for name in self.banks}
+        if sdf is not None:
+            adam["structure"] = AdamConfig(lr=sdf.lr, weight_decay=sdf.weight_decay)
+        self.optimisers = {name: StackedAdam(bank, adam[name]) for name, bank in self.banks.items()}
         self.slots: dict[int, InstanceSlot] = {}
         self.keyframes = KeyframeBuffer(self.device, self.config.keyframe_capacity, self.config.keyframe_policy,
                                         seed=seed)
@@ -228,14 +246,18 @@ class MappingAgent:
         return [iid for iid, s in sorted(self.slots.items())
                 if s.bank == bank and s.alive and self.keyframes.has_pixels(iid)]
 
-    def training_batches(self) -> list[TrainingBatch]:
+    def training_batches(self) -> list[TrainingBatch | SdfBatch]:
         """One step's rays and samples per bank (the keyframe rays of every trainable instance, samples
         inside its box): what ``data_loss`` evaluates the field on, apart so that a fleet can evaluate
-        every agent's batches in one computation (``mapping.fleet``)."""
-        batches = []
+        every agent's batches in one computation (``mapping.fleet``). A MACIM scene network gets an
+        ``SdfBatch`` per row instead."""
+        batches: list[TrainingBatch | SdfBatch] = []
         for name, bank in self.banks.items():
             ids = self.trainable_ids(name)
             if not ids:
+                continue
+            if isinstance(bank, SdfFieldBank):
+                batches += [self.sdf_batch(name, bank, iid) for iid in ids]
                 continue
             rows = torch.as_tensor([self.slots[i].row for i in ids], device=self.device)
             n_rays = self.config.rays_per_structure if name == "structure" else self.config.rays_per_object
@@ -253,9 +275,26 @@ class MappingAgent:
             batches.append(TrainingBatch(name, rows, rays, samples, near, far))
         return batches
 
-    def add_batch_loss(self, total: torch.Tensor, batch: TrainingBatch, out: FieldOutput) -> torch.Tensor:
+    def sdf_batch(self, name: str, bank: SdfFieldBank, iid: int) -> SdfBatch:
+        """MACIM's samples of one step for a scene network: ``SdfConfig.rays`` keyframe rays (those without
+        valid depth dropped, as theirs)."""
+        config = bank.sdf_config
+        rays = self.keyframes.sample([iid], config.rays, 1.0, self.rng)
+        valid = torch.isfinite(rays.depth[0]) & (rays.depth[0] > 0)
+        samples = sdf_samples(rays.origins[0][valid], rays.directions[0][valid], rays.depth[0][valid], config,
+                              self.generator)
+        return SdfBatch(name, self.slots[iid].row, samples)
+
+    def add_batch_loss(self, total: torch.Tensor, batch: TrainingBatch | SdfBatch,
+                       out: FieldOutput | None) -> torch.Tensor:
         """``total`` + eq. 11 (and the free-space term when weighted) of one bank's batch, given the
-        field's output on ``batch.positions``."""
+        field's output on ``batch.positions``; for an ``SdfBatch``, MACIM's loss (``out`` unused: it needs
+        the signed distance and its gradient, evaluated here)."""
+        if isinstance(batch, SdfBatch):
+            bank = self.banks[batch.bank]
+            rows = torch.tensor([batch.row], device=self.device)
+            return total + sdf_step_loss(lambda points: bank.sdf(points.reshape(1, -1, 3), rows).reshape(
+                points.shape[:-1]), batch.samples, bank.sdf_config)
         n, r, s = batch.samples.depths.shape
         rays, samples = batch.rays, batch.samples
         rendered = render_occupancy(out.occupancy.reshape(n, r, s), out.colour.reshape(n, r, s, 3), samples.depths)
@@ -271,7 +310,8 @@ class MappingAgent:
         """Eq. 11 summed over both banks, on one batch of keyframe rays per instance."""
         total = torch.zeros((), device=self.device)
         for batch in self.training_batches():
-            total = self.add_batch_loss(total, batch, self.banks[batch.bank](batch.positions, batch.rows))
+            out = None if isinstance(batch, SdfBatch) else self.banks[batch.bank](batch.positions, batch.rows)
+            total = self.add_batch_loss(total, batch, out)
         return total
 
     def step_optimisers(self, loss: torch.Tensor) -> float:

@@ -8,6 +8,7 @@ from dataclasses import dataclass, field, replace
 from mapping.config_fields import NEUTRAL_DEFAULT
 from mapping.losses import DataLossWeights
 from mapping.render import SamplerConfig
+from mapping.sdf_loss import SdfConfig
 
 
 FREE_SPACE_RAYS = ("box2d", "crossing")
@@ -64,6 +65,11 @@ class MappingConfig:
     global_frame: tuple[float, float, float, float] | None = None
     """(centre x, y, z, half-size) given to every new instance instead of a frame from its first box:
     the scene box of a global map (``mapping.team.global_map``), fixed so that it is never refit."""
+    structure_sdf: SdfConfig | None = field(default=None, metadata=NEUTRAL_DEFAULT)
+    """Make the structure bank MACIM's scene SDF network, trained with its losses (``mapping.sdf_field``,
+    ``mapping.sdf_loss``): the published form of the global baselines. None: vMAP's occupancy networks."""
+    iterations_after_stream: int = field(default=0, metadata=NEUTRAL_DEFAULT)
+    """Local iterations after an agent's last frame, on top of ``TeamConfig.min_local_steps`` (MACIM: 200)."""
 
     def __post_init__(self) -> None:
         if self.free_space_rays not in FREE_SPACE_RAYS:

@@ -72,7 +72,7 @@ class InstanceFieldBank(nn.Module):
     def __init__(self, config: FieldConfig = OBJECT_FIELD, device: str | torch.device = "auto"):
         super().__init__()
         self.config = config
-        self.layout = param_layout(config.hidden_width)
+        self.layout = self.network_layout()
         self._sizes = [math.prod(shape) for _, shape in self.layout]
         dev = resolve_device(device)
         self.params = nn.Parameter(torch.zeros(0, sum(self._sizes), device=dev))
@@ -119,7 +119,7 @@ class InstanceFieldBank(nn.Module):
             raise ValueError("every frame_half must be positive")
         start = self.num_instances
         if params is None:
-            new = init_instance_params(self.config.hidden_width, k, generator).to(self.device)
+            new = self.initial_params(k, generator).to(self.device)
         else:
             new = torch.as_tensor(params, dtype=torch.float32, device=self.device).reshape(k, self.param_dim)
         self.params = nn.Parameter(torch.cat([self.params.detach(), new]))
@@ -128,6 +128,14 @@ class InstanceFieldBank(nn.Module):
         self.frame_centre = torch.cat([self.frame_centre, centre])
         self.frame_half = torch.cat([self.frame_half, half])
         return list(range(start, start + k))
+
+    def network_layout(self) -> list[tuple[str, tuple[int, ...]]]:
+        """Names and shapes of one row's parameters (vMAP's network; ``mapping.sdf_field`` overrides it)."""
+        return param_layout(self.config.hidden_width)
+
+    def initial_params(self, k: int, generator: torch.Generator | None = None) -> Tensor:
+        """(k, D) fresh rows on the CPU (vMAP's initialisation)."""
+        return init_instance_params(self.config.hidden_width, k, generator)
 
     def default_frame(self, bound_min: Tensor, bound_max: Tensor) -> tuple[Tensor, Tensor]:
         """This bank's frame for (k, 3) boxes (``frame_for_box`` with the config's margin and minimum)."""
@@ -262,6 +270,8 @@ class InstanceFieldBank(nn.Module):
                 "min_frame_half_m": self.config.min_frame_half_m}
 
     def set_extra_state(self, state: dict) -> None:
+        if state.get("network", "vmap") != "vmap":
+            raise ValueError(f"checkpoint holds a {state['network']!r} bank, this is a vMAP occupancy bank")
         if state["hidden_width"] != self.config.hidden_width:
             raise ValueError(f"checkpoint has hidden width {state['hidden_width']}, "
                              f"this bank {self.config.hidden_width}")

@@ -20,7 +20,7 @@ from typing import Callable, Sequence
 
 import torch
 
-from mapping.agent import MappingAgent, TrainingBatch
+from mapping.agent import MappingAgent, SdfBatch, TrainingBatch
 from mapping.field import FieldOutput
 from mapping.runtime import flushed_denormals
 
@@ -75,13 +75,16 @@ def fleet_step(agents: Sequence[MappingAgent], extra_losses: Sequence[ExtraLoss]
     return [agent.step_optimisers(total) for agent, total in zip(agents, totals)]
 
 
-def joint_evaluation(agents: Sequence[MappingAgent], batches: Sequence[Sequence[TrainingBatch]]
-                     ) -> list[list[FieldOutput]]:
+def joint_evaluation(agents: Sequence[MappingAgent], batches: Sequence[Sequence[TrainingBatch | SdfBatch]]
+                     ) -> list[list[FieldOutput | None]]:
     """Every batch's field output, batches of the same bank kind (same network width, encoding,
-    device and samples per instance) evaluated as one stacked computation; ``[agent][batch]``."""
+    device and samples per instance) evaluated as one stacked computation; ``[agent][batch]`` (None for
+    an ``SdfBatch``: MACIM's loss evaluates its network itself, with the gradient it needs)."""
     groups: dict[tuple, list[tuple[int, int]]] = {}
     for a, (agent, own) in enumerate(zip(agents, batches)):
         for b, batch in enumerate(own):
+            if isinstance(batch, SdfBatch):  # MACIM's loss evaluates its own network (add_batch_loss)
+                continue
             bank = agent.banks[batch.bank]
             key = (batch.bank, bank.config, str(bank.device), batch.positions.shape[1])
             groups.setdefault(key, []).append((a, b))
@@ -95,7 +98,7 @@ def joint_evaluation(agents: Sequence[MappingAgent], batches: Sequence[Sequence[
         sizes = [len(part.rows) for part in parts]
         for (a, b), occ, col in zip(members, occupancy.split(sizes), colour.split(sizes)):
             outputs[a][b] = FieldOutput(occ, col)
-    return outputs  # type: ignore[return-value]
+    return outputs
 
 
 __all__ = ["ExtraLoss", "fleet_step", "fleet_train", "joint_evaluation"]

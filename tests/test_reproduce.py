@@ -11,6 +11,7 @@ import trimesh
 
 from mapping.data.frame import Intrinsics
 from mapping.evaluate.culling import cull_to_frustums
+from mapping.sdf_loss import SdfConfig
 from mapping.team.global_map import GLOBAL_ENCODING_SCALE
 from openmulti_env.runs.reproduce.command import reproduce
 from openmulti_env.runs.reproduce.methods import METHODS, TABLE_I_METHODS, get_method
@@ -28,7 +29,11 @@ def test_design_method_names_are_all_presets():
 
 
 @pytest.mark.parametrize("method", list(METHODS))
-def test_every_method_runs_two_rounds_on_the_tiny_world_and_writes_a_row(method, tmp_path):
+def test_every_method_runs_two_rounds_on_the_tiny_world_and_writes_a_row(method, tmp_path, monkeypatch):
+    if METHODS[method].global_form == "published":  # MACIM's width-256 SDF: the path, at a test's size
+        from openmulti_env.runs import run as run_module
+
+        monkeypatch.setattr(run_module, "SdfConfig", lambda: SdfConfig(width=32, rays=32, iterations_after=2))
     spec = RunSpec(method, "tiny", 0, METHODS[method].agents or 2)
     (row,) = run_table([spec], "tiny", tmp_path, threads=1, three_cullings=False, max_rounds=2, progress=False)
     assert row["method"] == method and (tmp_path / "rows" / f"{spec.key('tiny')}.json").is_file()
@@ -39,8 +44,10 @@ def test_every_method_runs_two_rounds_on_the_tiny_world_and_writes_a_row(method,
     if method == "single_agent":
         assert row["agents"] == 1
     if method == "dinerf_global":
-        assert row["map"]["kind"] == "global" and row["f_miou"] is None
-        assert row["map"]["encoding_scale"] == GLOBAL_ENCODING_SCALE
+        assert row["map"]["kind"] == "global" and row["map"]["form"] == "published" and row["f_miou"] is None
+        assert row["map"]["network"] == "MACIM scene SDF" and row["map"]["width"] == 32
+    if method == "dinerf_global_equal_compute":
+        assert row["map"]["kind"] == "global" and row["map"]["encoding_scale"] == GLOBAL_ENCODING_SCALE
     if method == "openmulti":
         assert row["map"]["kind"] == "instance" and row["f_miou"] is not None
     # point clouds grow with the explored area; a global map sends one network of a fixed size
@@ -54,7 +61,8 @@ def test_every_method_runs_two_rounds_on_the_tiny_world_and_writes_a_row(method,
 
 def test_every_method_is_exercised_with_its_own_assertions():
     """The per-method test above names these methods: a renamed one must not pass silently."""
-    assert {"single", "single_agent", "dinerf_global", "openmulti", "pointcloud_sharing", "macim_global"} <= set(METHODS)
+    assert {"single", "single_agent", "dinerf_global", "openmulti", "pointcloud_sharing", "macim_global",
+            "dinerf_global_equal_compute"} <= set(METHODS)
 
 
 def _fake_run(calls):

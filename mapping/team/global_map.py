@@ -12,10 +12,14 @@ mapper never sees its ids, so the global map carries no per-instance semantics.
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
+from mapping.agent_config import MappingConfig
 from mapping.instance_params import mlp_flops_per_point
 from mapping.perception.codebook import CodeBookEntry
+from mapping.sdf_loss import SdfConfig
 
 GLOBAL_WIDTH = 128
 """Hidden width of a global map's one network (vMAP's background network)."""
@@ -51,3 +55,21 @@ def global_rays_for(objects: int, structures: int, rays_per_object: int, rays_pe
     flops = (objects * rays_per_object * mlp_flops_per_point(object_width)
              + structures * rays_per_structure * mlp_flops_per_point(structure_width))
     return max(1, int(round(flops / mlp_flops_per_point(global_width))))
+
+
+GLOBAL_FORMS = ("equal_compute", "published")
+"""A global baseline's map: ``equal_compute``, the width-128 occupancy network above with the instance-level
+map's per-step FLOPs, or ``published``, MACIM's scene SDF with its samples, losses, optimiser, iteration
+budget and rho (``published_mapping``; docs/baselines.md says what is and is not as published)."""
+MACIM_RHO = 0.3
+"""MACIM's consistency weight (``loss.rho``): the published form's eq. 12 weight."""
+
+
+def published_mapping(mapping: MappingConfig, frame: tuple[float, float, float, float],
+                      sdf: SdfConfig = SdfConfig()) -> MappingConfig:
+    """``mapping`` with MACIM's published map in the structure bank: its scene SDF (frame = the scene box,
+    encoded in metres x ``encoding_per_m`` from the box centre), every frame a keyframe trained
+    ``iterations_per_frame`` times, and ``iterations_after`` more after the last frame."""
+    return replace(mapping, structure_sdf=sdf, structure_width=sdf.width, global_frame=frame,
+                   structure_encoding_scale=1.0 / (frame[3] * sdf.encoding_per_m), keyframe_every=1,
+                   iterations_per_keyframe=sdf.iterations_per_frame, iterations_after_stream=sdf.iterations_after)

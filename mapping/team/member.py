@@ -213,9 +213,10 @@ class TeamMember(StreamReader, Outbox, Inbox, Agreement):
 
     def steps_after_stream(self) -> int:
         """Local iterations its keyframes give short of ``TeamConfig.min_local_steps`` (each keyframe gives
-        ``iterations_per_keyframe``): what it trains after its last frame."""
+        ``iterations_per_keyframe``), plus ``MappingConfig.iterations_after_stream``: what it trains after
+        its last frame."""
         had = self.mapper.keyframes.seen * self.config.mapping.iterations_per_keyframe
-        return max(0, self.config.min_local_steps - had)
+        return max(0, self.config.min_local_steps - had) + self.config.mapping.iterations_after_stream
 
     # ---- what this agent knows ---------------------------------------------------------------------
     def snapshot(self, rounds: int, new_frames: Sequence[Frame], budget_left_bytes: float,

@@ -23,7 +23,9 @@ from mapping.pipeline import RunConfig, Schedule, SourceRecord, run_team
 from mapping.runtime import available_cores, set_threads
 from mapping.team import AgentSnapshot, ChannelConfig, ExchangeConfig, RoundPlan, TeamConfig
 from mapping.team.consistency import CONSISTENCY_ALGORITHMS
-from mapping.team.global_map import GLOBAL_ENCODING_SCALE, GLOBAL_WIDTH, global_rays_for, scene_frame
+from mapping.sdf_loss import SdfConfig
+from mapping.team.global_map import (GLOBAL_ENCODING_SCALE, GLOBAL_FORMS, GLOBAL_WIDTH, MACIM_RHO, global_rays_for,
+                                      published_mapping, scene_frame)
 from openmulti_env.environment.actions import actions_to_plan
 from openmulti_env.presets import Preset, get_preset
 from openmulti_env.runs.sim_source import SimulatedSource
@@ -40,8 +42,8 @@ def run(scene: str, agents: int, policy: str, preset: str, seed: int, out: Path,
         float16: bool = False, changed_only: float | None = None, threads: int | None = None,
         checkpoint_every: int = 5, progress: bool = True, max_rounds: int | None = None,
         global_map: bool = False, global_width: int = GLOBAL_WIDTH,
-        global_encoding_scale: float = GLOBAL_ENCODING_SCALE, share_point_clouds: bool = False,
-        three_cullings: bool = False, plots: bool = True, workers: int | None = None,
+        global_encoding_scale: float = GLOBAL_ENCODING_SCALE, global_form: str = "equal_compute",
+        share_point_clouds: bool = False, three_cullings: bool = False, plots: bool = True, workers: int | None = None,
         missing_edges: str = "skip", processes: str | None = None, holdout_every: int | None = None,
         learner: str = "per_agent", evaluate: bool = True) -> dict:
     """A team run on the simulated ``scene``; returns the metrics written to ``out/metrics.json``.
@@ -71,6 +73,9 @@ def run(scene: str, agents: int, policy: str, preset: str, seed: int, out: Path,
         global_map: one network of width ``global_width`` (encoding scale ``global_encoding_scale``)
             for the whole scene per agent, with the instance-level map's per-step compute
             (``mapping.team.global_map``): the global baselines.
+        global_form: the global map's form: ``equal_compute`` (above) or ``published`` (MACIM's scene SDF,
+            samples, losses, iteration budget and rho 0.3; ``global_width`` and ``global_encoding_scale``
+            are then MACIM's).
         share_point_clouds: "send parameters" links carry the observed points instead (Table VI).
         three_cullings: also score every map NICE-SLAM-culled and unculled (``mapping.pipeline.scoring``).
         plots: write the pictures (the experiments skip them: they cost seconds per run).
@@ -80,6 +85,8 @@ def run(scene: str, agents: int, policy: str, preset: str, seed: int, out: Path,
             ``threads`` is not given (each with 1 torch thread: small batches use one core better than
             two), else 1.
     """
+    if global_form not in GLOBAL_FORMS:
+        raise ValueError(f"unknown global_form {global_form!r}; choose one of {GLOBAL_FORMS}")
     begun = begin_run(preset, policy, agents, alignment, consistency, comm_budget_mb, threads, workers, seed,
                       clip_checkpoint)
     chosen, scripted, workers, image_encoder = begun.preset, begun.policy, begun.workers, begun.image_encoder
@@ -89,18 +96,22 @@ def run(scene: str, agents: int, policy: str, preset: str, seed: int, out: Path,
                 "comm_budget_mb": comm_budget_mb, "consistency": consistency, "cross_rendering": cross_rendering,
                 "float16": float16, "changed_only": changed_only,
                 **({"missing_edges": missing_edges} if consistency in ("dinno", "dsgd") else {})}
+    published = global_map and global_form == "published"
+    if published:
+        global_width = SdfConfig().width
     if global_map or share_point_clouds or three_cullings:  # older runs' settings stay as they were
         settings.update({"global_map": global_map, "global_width": global_width,
-                         **({"global_encoding_scale": global_encoding_scale} if global_map else {}),
+                         **({"global_encoding_scale": global_encoding_scale} if global_map and not published else {}),
+                         **({"global_form": global_form} if published else {}),
                          "share_point_clouds": share_point_clouds, "three_cullings": three_cullings})
     print(f"[openmulti] world {world.scene.name}: {len(world.scene.instances)} instances, "
           f"{world.num_agents} agent(s), {sum(len(p) for p in world.agent_poses)} frames")
     source = SimulatedSource(world, seed, shared_text_encoder(name=chosen.text_encoder), image_encoder,
                              segmentation_errors)
-    mapping, map_info = map_structure(world, chosen, global_map, global_width, global_encoding_scale)
+    mapping, map_info = map_structure(world, chosen, global_map, global_width, global_encoding_scale, published)
     team = run_team_config(chosen, alignment, consistency, cross_rendering, float16, changed_only, mapping=mapping,
                            global_map=global_map, share_point_clouds=share_point_clouds, missing_edges=missing_edges,
-                           holdout_every=holdout_every)
+                           holdout_every=holdout_every, rho=MACIM_RHO if published else None)
     errors = SegmentationErrorConfig() if segmentation_errors else SegmentationErrorConfig.none()
     record = SourceRecord(settings, {"map": map_info}, described={"error_rates": asdict(errors)})
     config = RunConfig(Path(out), team, team_channel(scripted, comm_budget_mb), seed=seed, device=device,
@@ -251,23 +262,31 @@ def team_channel(policy, comm_budget_mb: float | None) -> ChannelConfig:
 def run_team_config(preset: Preset, alignment: str, consistency: str, cross_rendering: bool, float16: bool,
                     changed_only: float | None, mapping: MappingConfig | None = None, global_map: bool = False,
                     share_point_clouds: bool = False, missing_edges: str = "skip",
-                    holdout_every: int | None = None) -> TeamConfig:
-    """The team settings of a run from its command-line options (on the preset's ``team_config``)."""
+                    holdout_every: int | None = None, rho: float | None = None) -> TeamConfig:
+    """The team settings of a run from its command-line options (on the preset's ``team_config``; ``rho``:
+    the consensus weight, None for the library's)."""
     return preset.team_config(mapping=mapping, alignment=alignment == "paper", global_map=global_map,
                               holdout_every=holdout_every,
                               consistency={"algorithm": consistency, "cross_rendering": cross_rendering,
-                                           "missing_edges": missing_edges},
+                                           "missing_edges": missing_edges, **({"rho": rho} if rho is not None else {})},
                               exchange=ExchangeConfig(float16=float16, changed_only=changed_only,
                                                       point_clouds=share_point_clouds))
 
 
 def map_structure(world: World, preset: Preset, global_map: bool, width: int,
-                  encoding_scale: float = GLOBAL_ENCODING_SCALE) -> tuple[MappingConfig, dict]:
+                  encoding_scale: float = GLOBAL_ENCODING_SCALE, published: bool = False) -> tuple[MappingConfig, dict]:
     """The mapper settings and a description of the map (widths, rays per step) for the table.
 
     A global map gets the scene box as its frame and the rays per step that buy the per-step MLP
-    FLOPs of an instance-level map of this scene's instances (``global_rays_for``)."""
+    FLOPs of an instance-level map of this scene's instances (``global_rays_for``), or, ``published``,
+    MACIM's scene SDF with its own budget (``published_mapping``)."""
     mapping = preset.mapping
+    if global_map and published:
+        sdf = SdfConfig()
+        return published_mapping(mapping, scene_frame(world.scene.size_m), sdf), {
+            "kind": "global", "form": "published", "network": "MACIM scene SDF", "width": sdf.width,
+            "rays_per_step": sdf.rays, "samples_per_ray": sdf.n_stratified + sdf.n_surface,
+            "iterations_per_frame": sdf.iterations_per_frame, "iterations_after": sdf.iterations_after}
     objects = sum(1 for i in world.scene.instances if not i.is_structure)
     structures = len(world.scene.instances) - objects
     if not global_map:

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass
 
-from mapping.team.global_map import GLOBAL_ENCODING_SCALE
+from mapping.team.global_map import GLOBAL_ENCODING_SCALE, GLOBAL_FORMS
 
 
 @dataclass(frozen=True)
@@ -32,6 +32,13 @@ class Method:
     """Fixed number of agents (None: the table's)."""
     missing_edges: str = "skip"
     """DiNNO and DSGD with a vector that did not arrive this round (``ConsistencyConfig.missing_edges``)."""
+    global_form: str = "equal_compute"
+    """A global map's form (``mapping.team.global_map.GLOBAL_FORMS``): MACIM's ``published`` scene SDF or the
+    ``equal_compute`` occupancy network."""
+
+    def __post_init__(self) -> None:
+        if self.global_form not in GLOBAL_FORMS:
+            raise ValueError(f"method {self.name}: unknown global_form {self.global_form!r}; choose one of {GLOBAL_FORMS}")
 
     def run_options(self) -> dict:
         """The keyword arguments of ``run`` this method sets."""
@@ -40,7 +47,9 @@ class Method:
                    "alignment": self.alignment}
         if self.consistency in ("dinno", "dsgd"):  # only theirs: the other methods' rows keep their keys
             options["missing_edges"] = self.missing_edges
-        if self.global_map:  # the global network's encoding (a library default) decides its rows too
+        if self.global_map and self.global_form == "published":  # MACIM's settings travel with the form
+            options["global_form"] = "published"
+        elif self.global_map:  # the global network's encoding (a library default) decides its rows too
             options["global_encoding_scale"] = GLOBAL_ENCODING_SCALE
         return options
 
@@ -55,13 +64,21 @@ METHODS: dict[str, Method] = {m.name: m for m in (
            "consistency loss, no Cross Rendering", consistency="dsgd", cross_rendering=False),
     Method("dinno_instance", "DiNNO_I", "instance-level map, DiNNO's ADMM updates instead of the consistency "
            "loss, no Cross Rendering", consistency="dinno", cross_rendering=False),
-    Method("dinerf_global", "Di-NeRF*", "one global network per agent, ADMM consensus (DiNNO's updates), "
-           "ground-truth poses", consistency="dinno", cross_rendering=False, global_map=True),
+    Method("dinerf_global", "Di-NeRF*", "MACIM's published scene SDF per agent (network, samples, losses, "
+           "iteration budget) with DiNNO's ADMM updates, ground-truth poses", consistency="dinno",
+           cross_rendering=False, global_map=True, global_form="published"),
     Method("dinerf_global_stale", "Di-NeRF*, stale edges", "Di-NeRF* whose ADMM uses the last vector held "
            "from a peer when this round's did not arrive (Table V's other choice for a missing edge)",
-           consistency="dinno", cross_rendering=False, global_map=True, missing_edges="last"),
-    Method("macim_global", "MACIM", "one global network per agent with the consistency loss (eq. 12)",
-           consistency="consensus", cross_rendering=False, global_map=True),
+           consistency="dinno", cross_rendering=False, global_map=True, missing_edges="last", global_form="published"),
+    Method("macim_global", "MACIM", "MACIM's published scene SDF per agent (network, samples, losses, iteration "
+           "budget) with its consistency loss (eq. 12, rho 0.3)", consistency="consensus", cross_rendering=False,
+           global_map=True, global_form="published"),
+    Method("dinerf_global_equal_compute", "Di-NeRF*, equal compute", "one width-128 occupancy network per agent "
+           "with the instance-level map's per-step FLOPs, DiNNO's ADMM updates, ground-truth poses",
+           consistency="dinno", cross_rendering=False, global_map=True),
+    Method("macim_global_equal_compute", "MACIM, equal compute", "one width-128 occupancy network per agent with "
+           "the instance-level map's per-step FLOPs and the consistency loss (eq. 12)", consistency="consensus",
+           cross_rendering=False, global_map=True),
     Method("openmulti_no_cross", "w/o Cross Rendering", "OpenMulti without Cross Rendering Supervision (eq. 13)",
            consistency="consensus", cross_rendering=False),
     Method("openmulti_global", "w/o instance-level", "OpenMulti's optimisation (eq. 12 + 13) on a global map",
@@ -81,6 +98,9 @@ METHODS: dict[str, Method] = {m.name: m for m in (
 TABLE_I_METHODS = ("single", "dsgd_instance", "dinno_instance", "dinerf_global", "macim_global",
                    "openmulti_no_cross", "openmulti_global", "openmulti")
 """The DESIGN.md method names, in Table I's order (the ablations last)."""
+EQUAL_COMPUTE_METHODS = ("dinerf_global_equal_compute", "macim_global_equal_compute")
+"""The global baselines as a width-128 occupancy network with the instance-level map's per-step FLOPs: Table I
+shows them beside the published forms, Table IV's "neither" row is the MACIM one."""
 
 
 def get_method(name: str) -> Method:
