@@ -199,3 +199,17 @@ def test_an_unknown_global_form_is_refused(tmp_path):
         run("tiny", 2, "always", "tiny", 0, tmp_path, global_map=True, global_form="macim", progress=False)
     with pytest.raises(ValueError, match="unknown global_form 'x'"):
         Method("m", "M", "d", global_map=True, global_form="x")
+
+
+def test_softplus_is_isdfs_with_exact_first_and_second_derivatives():
+    from mapping.sdf_network import softplus
+
+    x = torch.linspace(-3, 3, 20001, dtype=torch.float64, requires_grad=True)
+    y = softplus(x)
+    (g,) = torch.autograd.grad(y.sum(), x, create_graph=True)
+    (h,) = torch.autograd.grad(g.sum(), x)
+    s = torch.sigmoid(100 * x)
+    assert torch.allclose(y, torch.nn.functional.softplus(x, beta=100), atol=1e-9)
+    assert torch.allclose(g, s, atol=1e-12) and torch.allclose(h, 100 * s * (1 - s), atol=1e-9)
+    small = (torch.randn(30, dtype=torch.float64) * 0.05).requires_grad_()
+    assert torch.autograd.gradgradcheck(softplus, (small,))
