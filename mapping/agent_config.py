@@ -68,6 +68,8 @@ class MappingConfig:
     structure_sdf: SdfConfig | None = field(default=None, metadata=NEUTRAL_DEFAULT)
     """Make the structure bank MACIM's scene SDF network, trained with its losses (``mapping.sdf_field``,
     ``mapping.sdf_loss``): the published form of the global baselines. None: vMAP's occupancy networks."""
+    iterations_first_keyframe: int = field(default=0, metadata=NEUTRAL_DEFAULT)
+    """Extra local iterations in the round of an agent's first keyframe (MACIM: 200 on its first frame)."""
     iterations_after_stream: int = field(default=0, metadata=NEUTRAL_DEFAULT)
     """Local iterations after an agent's last frame, on top of ``TeamConfig.min_local_steps`` (MACIM: 200)."""
 

@@ -54,8 +54,10 @@ class SdfConfig:
     eikonal_apply_m: float = 0.1
     lr: float = 0.0013
     weight_decay: float = 0.012
+    iterations_first: int = 200
+    """The first frame is trained on this many iterations (``iters_first``), ..."""
     iterations_per_frame: int = 3
-    """Every frame is trained on this many iterations (``iters_per_frame``)..."""
+    """... every frame after it on this many (``iters_per_frame``; MACIM's keyframes get 6) ..."""
     iterations_after: int = 200
     """... and the map this many after the last frame (``iters_last``)."""
 
@@ -63,8 +65,8 @@ class SdfConfig:
         for name in ("width", "rays", "n_surface", "iterations_per_frame"):
             if getattr(self, name) < 1:
                 raise ValueError(f"SdfConfig.{name} must be >= 1, got {getattr(self, name)}")
-        if self.n_stratified < 0 or self.iterations_after < 0:
-            raise ValueError("SdfConfig.n_stratified and iterations_after must be >= 0")
+        if min(self.n_stratified, self.iterations_first, self.iterations_after) < 0:
+            raise ValueError("SdfConfig.n_stratified, iterations_first and iterations_after must be >= 0")
 
 
 @dataclass

@@ -19,7 +19,7 @@ from mapping.sdf_loss import SdfConfig, batch_bounds, eikonal_loss, sdf_loss, sd
 from mapping.sdf_network import SDF_ENCODING_DIM, init_sdf_params, sdf_param_layout
 from mapping.team.global_map import published_mapping
 
-SMALL = SdfConfig(width=32, rays=64, n_stratified=6, n_surface=3, iterations_after=4)
+SMALL = SdfConfig(width=32, rays=64, n_stratified=6, n_surface=3, iterations_first=2, iterations_after=4)
 
 
 def _bank(config: SdfConfig = SMALL, half: float = 2.0) -> SdfFieldBank:
@@ -183,7 +183,7 @@ def test_the_published_form_sets_macims_budget_and_rho():
     mapping = published_mapping(preset.mapping, (2.0, 2.0, 1.5, 2.6))
     assert mapping.structure_sdf == SdfConfig() and mapping.structure_width == 256
     assert mapping.keyframe_every == 1 and mapping.iterations_per_keyframe == 3
-    assert mapping.iterations_after_stream == 200
+    assert mapping.iterations_after_stream == 200 and mapping.iterations_first_keyframe == 200
     assert mapping.structure_encoding_scale == pytest.approx(1.0 / (2.6 * SdfConfig().encoding_per_m))
     team = run_team_config(preset, "paper", "consensus", False, False, None, mapping=mapping, global_map=True, rho=0.3)
     assert team.consistency.rho == 0.3 and team.global_map
@@ -213,3 +213,13 @@ def test_softplus_is_isdfs_with_exact_first_and_second_derivatives():
     assert torch.allclose(g, s, atol=1e-12) and torch.allclose(h, 100 * s * (1 - s), atol=1e-9)
     small = (torch.randn(30, dtype=torch.float64) * 0.05).requires_grad_()
     assert torch.autograd.gradgradcheck(softplus, (small,))
+
+
+def test_a_published_row_is_keyed_on_macims_settings_and_other_rows_are_not():
+    from openmulti_env.runs.reproduce.runner import run_settings
+    from openmulti_env.runs.reproduce.tables import RunSpec
+
+    published = run_settings(RunSpec("macim_global", "room0", 0, 4), "fast", False, None)
+    assert published["published_map"]["rays"] == 200 and published["published_map"]["iterations_first"] == 200
+    assert "published_map" not in run_settings(RunSpec("macim_global_equal_compute", "room0", 0, 4), "fast", False, None)
+    assert "published_map" not in run_settings(RunSpec("openmulti", "room0", 0, 4), "fast", False, None)

@@ -564,3 +564,15 @@ def test_a_short_stream_takes_keyframes_more_often_down_to_every_frame(tiny_worl
 def test_minimums_must_not_be_negative(name):
     with pytest.raises(ValueError, match=f"{name} must be >= 0"):
         TeamConfig(**{name: -1})
+
+
+def test_first_keyframe_and_after_stream_iterations_are_added_once(tiny_world):
+    """MACIM's budget: extra iterations in the round of an agent's first keyframe and after its last frame."""
+    team, streams = _tiny_team(tiny_world)
+    mapping = replace(team.config.mapping, iterations_first_keyframe=5, iterations_after_stream=3)
+    short = Team([_ShortStream(s.inner, 8) for s in streams], replace(team.config, mapping=mapping),
+                 team.members[0].vocabulary, seed=0, device="cpu")
+    short.round(RoundPlan.never(2))
+    assert [m.mapper.steps for m in short.members] == [2 + 5, 2 + 5]  # one keyframe x 2, then the first's 5
+    short.round(RoundPlan.never(2))
+    assert short.done and [m.mapper.steps for m in short.members] == [7 + 2 + 3, 7 + 2 + 3]

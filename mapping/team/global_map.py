@@ -69,7 +69,9 @@ def published_mapping(mapping: MappingConfig, frame: tuple[float, float, float, 
                       sdf: SdfConfig = SdfConfig()) -> MappingConfig:
     """``mapping`` with MACIM's published map in the structure bank: its scene SDF (frame = the scene box,
     encoded in metres x ``encoding_per_m`` from the box centre), every frame a keyframe trained
-    ``iterations_per_frame`` times, and ``iterations_after`` more after the last frame."""
+    ``iterations_per_frame`` times, ``iterations_first`` more on the first and ``iterations_after`` more
+    after the last frame."""
     return replace(mapping, structure_sdf=sdf, structure_width=sdf.width, global_frame=frame,
                    structure_encoding_scale=1.0 / (frame[3] * sdf.encoding_per_m), keyframe_every=1,
-                   iterations_per_keyframe=sdf.iterations_per_frame, iterations_after_stream=sdf.iterations_after)
+                   iterations_per_keyframe=sdf.iterations_per_frame, iterations_first_keyframe=sdf.iterations_first,
+                   iterations_after_stream=sdf.iterations_after)

@@ -196,10 +196,13 @@ class TeamMember(StreamReader, Outbox, Inbox, Agreement):
             images = [as_global_image(image) for image in images]
         for iid, inst in self.fusion.instances.items():
             self.labels.setdefault(iid, self.vocabulary.label(inst.caption_feature))
+        first = self.mapper.keyframes.seen == 0
         keyframes = sum(self.mapper.ingest(frame, image) for frame, image in zip(frames, images))
         reading = PenaltyReading()
         extra = self.local_consensus(reading) if self.config.consistency.local_consensus else None
         iterations = keyframes * self.config.mapping.iterations_per_keyframe
+        if first and keyframes:  # the map's first keyframe (MACIM: 200 iterations on its first frame)
+            iterations += self.config.mapping.iterations_first_keyframe
         # a short stream trains the rest once, in the round that read its last frame (a finished member's
         # later rounds read nothing, and a team resumed after this round is past it)
         if indices and self.done:

@@ -41,7 +41,18 @@ def run_settings(spec: RunSpec, preset: str, three_cullings: bool, max_rounds: i
     return {"method": spec.method, "scene": spec.scene, "seed": spec.seed, "agents": spec.agents,
             "success_rate": spec.success_rate, "preset": preset, "policy": spec.policy,
             "options": METHODS[spec.method].run_options(), "three_cullings": three_cullings, "max_rounds": max_rounds,
-            "defaults": library_defaults(preset), **policy_identity(spec.policy)}
+            "defaults": library_defaults(preset), **policy_identity(spec.policy), **published_map_identity(spec.method)}
+
+
+def published_map_identity(method: str) -> dict:
+    """For a global baseline in its published form, MACIM's settings (``SdfConfig``): a row made with
+    others is redone. Other methods' rows carry nothing of it, so their keys stay as they were."""
+    if METHODS[method].global_form != "published":
+        return {}
+    from mapping.pipeline.records import settings_record  # noqa: PLC0415
+    from mapping.sdf_loss import SdfConfig  # noqa: PLC0415
+
+    return {"published_map": settings_record(SdfConfig())}
 
 
 def policy_identity(policy: str) -> dict:
