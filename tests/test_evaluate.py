@@ -314,17 +314,3 @@ def test_a_reference_sampled_once_scores_every_map_as_sampling_it_each_time():
         assert evaluate_mesh(rec, gt, count=5000, seed=4, reference=reference) == evaluate_mesh(rec, gt, count=5000, seed=4)
     with pytest.raises(ValueError, match="seed=4"):
         evaluate_mesh(rec, gt, count=5000, seed=5, reference=reference)
-
-
-def test_a_collapsed_reconstruction_scores_as_its_distinct_points():
-    """200,000 samples of a collapsed mesh repeat a few points: the scores equal those of the distinct points
-    (the completion tree is built on them; on the repeats cKDTree took minutes)."""
-    rng = np.random.default_rng(0)
-    gt = rng.random((20000, 3)) * 4
-    few = rng.random((7, 3)) * 4
-    rec = np.repeat(few, 2000, axis=0)
-    metrics = accuracy_completion(rec, gt)
-    brute_comp = np.linalg.norm(gt[:, None] - few[None], axis=-1).min(1)
-    assert metrics.comp_cm == pytest.approx(brute_comp.mean() * 100, rel=1e-9)
-    assert metrics.comp_ratio == pytest.approx((brute_comp < 0.05).mean() * 100)
-    assert metrics.n_rec_points == len(rec)

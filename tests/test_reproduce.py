@@ -33,7 +33,7 @@ def test_every_method_runs_two_rounds_on_the_tiny_world_and_writes_a_row(method,
     if METHODS[method].global_form == "published":  # MACIM's width-256 SDF: the path, at a test's size
         from openmulti_env.runs import run as run_module
 
-        small = SdfConfig(width=32, rays=32, iterations_first=2, iterations_after=2)
+        small = SdfConfig(width=32, rays=64, iterations_first=150, iterations_after=2)  # a room-sized surface
         monkeypatch.setattr(run_module, "SdfConfig", lambda: small)
     spec = RunSpec(method, "tiny", 0, METHODS[method].agents or 2)
     (row,) = run_table([spec], "tiny", tmp_path, threads=1, three_cullings=False, max_rounds=2, progress=False)
