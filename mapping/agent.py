@@ -257,7 +257,7 @@ class MappingAgent:
             if not ids:
                 continue
             if isinstance(bank, SdfFieldBank):
-                batches += [self.sdf_batch(name, bank, iid) for iid in ids]
+                batches += [b for b in (self.sdf_batch(name, bank, iid) for iid in ids) if b is not None]
                 continue
             rows = torch.as_tensor([self.slots[i].row for i in ids], device=self.device)
             n_rays = self.config.rays_per_structure if name == "structure" else self.config.rays_per_object
@@ -275,12 +275,14 @@ class MappingAgent:
             batches.append(TrainingBatch(name, rows, rays, samples, near, far))
         return batches
 
-    def sdf_batch(self, name: str, bank: SdfFieldBank, iid: int) -> SdfBatch:
+    def sdf_batch(self, name: str, bank: SdfFieldBank, iid: int) -> SdfBatch | None:
         """MACIM's samples of one step for a scene network: ``SdfConfig.rays`` keyframe rays (those without
-        valid depth dropped, as theirs)."""
+        valid depth dropped, as theirs; None when none has)."""
         config = bank.sdf_config
         rays = self.keyframes.sample([iid], config.rays, 1.0, self.rng)
         valid = torch.isfinite(rays.depth[0]) & (rays.depth[0] > 0)
+        if not bool(valid.any()):
+            return None
         samples = sdf_samples(rays.origins[0][valid], rays.directions[0][valid], rays.depth[0][valid], config,
                               self.generator)
         return SdfBatch(name, self.slots[iid].row, samples)

@@ -223,3 +223,12 @@ def test_a_published_row_is_keyed_on_macims_settings_and_other_rows_are_not():
     assert published["published_map"]["rays"] == 200 and published["published_map"]["iterations_first"] == 200
     assert "published_map" not in run_settings(RunSpec("macim_global_equal_compute", "room0", 0, 4), "fast", False, None)
     assert "published_map" not in run_settings(RunSpec("openmulti", "room0", 0, 4), "fast", False, None)
+
+
+def test_a_step_whose_rays_have_no_depth_trains_nothing_and_does_not_fail():
+    agent = _agent()
+    frame = _frames(1)[0]
+    agent.ingest(Frame(frame.rgb, np.zeros_like(frame.depth), frame.pose, frame.intrinsics, frame.instance))
+    assert agent.training_batches() == []
+    before = agent.banks["structure"].params.detach().clone()
+    assert agent.train(2) == 0.0 and torch.equal(before, agent.banks["structure"].params.detach())
