@@ -27,8 +27,7 @@ from mapping.instances import ExportedInstance, InstanceFrame, InstanceSlot
 from mapping.optim import AdamConfig, StackedAdam
 from mapping.keyframes import InstanceRays, KeyframeBuffer
 from mapping.losses import data_loss, free_space_loss
-from mapping.sdf_field import SdfFieldBank
-from mapping.sdf_loss import SdfSamples, sdf_samples, sdf_step_loss
+from mapping.sdf_field import SdfBatch, SdfFieldBank, sdf_batch
 from mapping.runtime import flushed_denormals, resolve_device
 from mapping.render import (CompositeConfig, CompositeRender, RayBundle, RaySamples, ray_aabb, render_image,
                             render_occupancy, sample_along_rays)
@@ -52,16 +51,6 @@ class TrainingBatch:
         """(N, R * S, 3) world points the field is evaluated on."""
         n, r, s = self.samples.depths.shape
         return self.samples.positions.reshape(n, r * s, 3)
-
-
-@dataclass
-class SdfBatch:
-    """A MACIM scene network's part of a training step (``MappingConfig.structure_sdf``): the samples of
-    its rays with valid depth, and their distance bounds (``mapping.sdf_loss``)."""
-
-    bank: str
-    row: int
-    samples: SdfSamples
 
 
 class MappingAgent:
@@ -276,16 +265,9 @@ class MappingAgent:
         return batches
 
     def sdf_batch(self, name: str, bank: SdfFieldBank, iid: int) -> SdfBatch | None:
-        """MACIM's samples of one step for a scene network: ``SdfConfig.rays`` keyframe rays (those without
-        valid depth dropped, as theirs; None when none has)."""
-        config = bank.sdf_config
-        rays = self.keyframes.sample([iid], config.rays, 1.0, self.rng)
-        valid = torch.isfinite(rays.depth[0]) & (rays.depth[0] > 0)
-        if not bool(valid.any()):
-            return None
-        samples = sdf_samples(rays.origins[0][valid], rays.directions[0][valid], rays.depth[0][valid], config,
-                              self.generator)
-        return SdfBatch(name, self.slots[iid].row, samples)
+        """MACIM's samples of one step for a scene network (``mapping.sdf_field.sdf_batch``)."""
+        rays = self.keyframes.sample([iid], bank.sdf_config.rays, 1.0, self.rng)
+        return sdf_batch(name, self.slots[iid].row, rays, bank.sdf_config, self.generator)
 
     def add_batch_loss(self, total: torch.Tensor, batch: TrainingBatch | SdfBatch,
                        out: FieldOutput | None) -> torch.Tensor:
@@ -293,10 +275,7 @@ class MappingAgent:
         field's output on ``batch.positions``; for an ``SdfBatch``, MACIM's loss (``out`` unused: it needs
         the signed distance and its gradient, evaluated here)."""
         if isinstance(batch, SdfBatch):
-            bank = self.banks[batch.bank]
-            rows = torch.tensor([batch.row], device=self.device)
-            return total + sdf_step_loss(lambda points: bank.sdf(points.reshape(1, -1, 3), rows).reshape(
-                points.shape[:-1]), batch.samples, bank.sdf_config)
+            return total + self.banks[batch.bank].batch_loss(batch)
         n, r, s = batch.samples.depths.shape
         rays, samples = batch.rays, batch.samples
         rendered = render_occupancy(out.occupancy.reshape(n, r, s), out.colour.reshape(n, r, s, 3), samples.depths)

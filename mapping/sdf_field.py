@@ -9,15 +9,39 @@ the SDF's surface; training reads the signed distance itself (``sdf``) with MACI
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import torch
 from torch import Tensor
 
 from mapping.field import FieldConfig, InstanceFieldBank
 from mapping.instance_mlp import LOGIT_LIMIT
-from mapping.sdf_loss import SdfConfig
+from mapping.keyframes import InstanceRays
+from mapping.sdf_loss import SdfConfig, SdfSamples, sdf_samples, sdf_step_loss
 from mapping.sdf_network import init_sdf_params, sdf_encoding, sdf_mlp, sdf_param_layout
 
 GREY = 0.5
+
+
+@dataclass
+class SdfBatch:
+    """A MACIM scene network's part of a training step (``MappingConfig.structure_sdf``): the samples of
+    its rays with valid depth, and their distance bounds (``mapping.sdf_loss``)."""
+
+    bank: str
+    row: int
+    samples: SdfSamples
+
+
+def sdf_batch(bank: str, row: int, rays: InstanceRays, config: SdfConfig,
+              generator: torch.Generator | None = None) -> SdfBatch | None:
+    """MACIM's samples of one step on one row's (1, R) keyframe rays: those without valid depth dropped, as
+    theirs (None when none has)."""
+    valid = torch.isfinite(rays.depth[0]) & (rays.depth[0] > 0)
+    if not bool(valid.any()):
+        return None
+    samples = sdf_samples(rays.origins[0][valid], rays.directions[0][valid], rays.depth[0][valid], config, generator)
+    return SdfBatch(bank, row, samples)
 
 
 class SdfFieldBank(InstanceFieldBank):
@@ -42,6 +66,12 @@ class SdfFieldBank(InstanceFieldBank):
     def sdf(self, points: Tensor, rows: Tensor) -> Tensor:
         """(n, P) signed distances of (n, P, 3) world points, row ``rows[i]`` on ``points[i]``."""
         return self.signed_distance_unit(self.params.index_select(0, rows), self.to_unit(points, rows))
+
+    def batch_loss(self, batch: SdfBatch) -> Tensor:
+        """MACIM's loss of one step (``mapping.sdf_loss.sdf_step_loss``) on the batch's row."""
+        rows = torch.tensor([batch.row], device=self.device)
+        return sdf_step_loss(lambda points: self.sdf(points.reshape(1, -1, 3), rows).reshape(points.shape[:-1]),
+                             batch.samples, self.sdf_config)
 
     def evaluate_unit(self, params: Tensor, unit: Tensor, with_colour: bool, logits: bool = False
                       ) -> tuple[Tensor, Tensor | None]:
