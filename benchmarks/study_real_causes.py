@@ -21,13 +21,16 @@ Variants (``--variants`` picks some; the default runs all):
 | `carve` | `base`, every sample in front of an observed surface asked to be empty (weight 10) | free space in the box |
 | `carve_half` | `carve` and `other_half` | |
 | `planes_4cm` | `base`, the geometric segmenter's plane inlier distance 4 cm (was 2 cm) | segments at range |
+| `segmenter_before` | `base` with the segmenter before range-aware thresholds (fixed 2 cm planes, one DBSCAN radius) | segments at range |
+| `segmenter_organized_only` | `segmenter_before` with organized clustering (fixed 2 cm planes) | segments at range |
 | `kinect_noise` | (``--scene``) the simulator's depth with Kinect v1's noise, 1.5 mm x depth^2 | depth noise at range |
 | `kinect_holes` | (``--scene``) 12 % of the depth pixels dropped at random | depth holes |
 | `kinect` | (``--scene``) both | |
 | `kinect_crossing_half` | `kinect` with `crossing_half`'s mapper | |
 
 ``--scene`` runs the variants on simulated scenes instead (the sensor variants only run there: the
-controlled set). Rows are written to ``OUT/rows.json`` as they finish (atomically); a second call with the same ``--out``
+controlled set). Each row also holds ``team_coverage_pct``: the share of the ground truth's (or TSDF
+reference's) surface within 5 cm of some agent's unculled map. Rows are written to ``OUT/rows.json`` as they finish (atomically); a second call with the same ``--out``
 skips the rows it has. Run: `.venv/bin/python benchmarks/study_real_causes.py --data /path/7scenes50
 /path/tum_cabinet58 [--preset fast] [--agents 2] [--holdout-every 10] [--out runs/study_real_causes]`
 (``scripts/real_data.py`` writes the two public sequences).
@@ -46,9 +49,11 @@ from pathlib import Path
 from typing import Callable
 
 import numpy as np
+import trimesh
 
 import mapping.data.source as data_source
 from mapping.agent_config import MappingConfig
+from mapping.evaluate.geometry import surface_classes
 from mapping.perception.geometric_segmenter import GeometricSegmenterConfig
 from mapping.pipeline.records import write_json_atomic
 from openmulti_env.presets import PRESETS, Preset
@@ -96,6 +101,8 @@ VARIANTS: dict[str, Variant] = {
     "carve_half": Variant(lambda m: replace(m, own_ray_fraction=0.5,
                                             loss_weights=replace(m.loss_weights, free_space=10.0))),
     "planes_4cm": Variant(segmenter={"plane_distance_m": 0.04}),
+    "segmenter_before": Variant(segmenter={"clustering": "dbscan", "depth_noise_m_per_m2": 0.0}),
+    "segmenter_organized_only": Variant(segmenter={"depth_noise_m_per_m2": 0.0}),
     "kinect_noise": Variant(sensor=KINECT_NOISE),
     "kinect_holes": Variant(sensor=KINECT_HOLES),
     "kinect": Variant(sensor={**KINECT_NOISE, **KINECT_HOLES}),
@@ -142,6 +149,15 @@ def _segmenter(fields: dict):
         data_source.GeometricSegmenter = original
 
 
+def team_coverage_pct(run_dir: Path) -> float:
+    """Share [%] of the run's ground truth (``meshes/gt_*.ply``) within 5 cm of the union of its agents' maps."""
+    gt = trimesh.load(next((run_dir / "meshes").glob("gt_*.ply")), force="mesh")
+    maps = [trimesh.load(p, force="mesh") for p in sorted((run_dir / "meshes").glob("agent_*.ply"))]
+    count = 100_000
+    classes = surface_classes(trimesh.util.concatenate(maps) if maps else None, gt, count=count)
+    return 100.0 * (1.0 - len(classes.missed) / count)
+
+
 def _mean(values: list) -> float | None:
     finite = [v for v in values if v is not None and np.isfinite(v)]
     return float(np.mean(finite)) if finite else None
@@ -180,17 +196,18 @@ def main() -> None:
                 metrics = (run_data(data, args.agents, "always", preset, args.seed, run_dir, **options) if data
                            else run(scene, args.agents, "always", preset, args.seed, run_dir, **options))
             rows[key] = {k: _mean([a.get(k) for a in metrics["agents"].values()]) for k in KEYS}
+            rows[key]["team_coverage_pct"] = team_coverage_pct(run_dir)
             rows[key]["wall_s"] = metrics["wall_s"]
             rows[key]["load"] = os.getloadavg()[0]
             write_json_atomic(rows_path, rows)
     print(f"\npreset {args.preset}, {args.agents} agents, policy always, every {args.holdout_every}th frame held out; "
           "mean over agents")
     print(f"{'sequence/variant':<32} {'err cm':>7} {'off %':>6} {'none %':>7} {'held err':>9} {'held off':>9} "
-          f"{'acc cm':>7} {'CR %':>6}")
+          f"{'acc cm':>7} {'CR %':>6} {'team cov %':>10}")
     for key, row in rows.items():
-        cells = [row.get(k) for k in KEYS]
+        cells = [row.get(k) for k in (*KEYS, "team_coverage_pct")]
         print(f"{key:<32} " + " ".join(f"{'-' if c is None else f'{c:.2f}':>{w}}"
-                                       for c, w in zip(cells, (7, 6, 7, 9, 9, 7, 6))))
+                                       for c, w in zip(cells, (7, 6, 7, 9, 9, 7, 6, 10))))
 
 
 if __name__ == "__main__":

@@ -1,8 +1,11 @@
 """A geometric segmenter for RGB-D recordings that come without instance masks (TUM- or 7-Scenes-style).
 
 Per frame, on the back-projected depth: the large planes first (walls, floor, table tops; open3d's
-RANSAC ``segment_plane``), each split into its connected pieces on the pixel grid, then Euclidean
-clusters of what remains (open3d's ``cluster_dbscan``). Masks carry neutral captions ("a planar surface", "an object"):
+RANSAC ``segment_plane``), each split into its connected pieces on the pixel grid, then connected
+pieces of what remains (PCL's organized Euclidean clustering: grid neighbours closer than a threshold
+are joined; ``clustering="dbscan"`` is open3d's ``cluster_dbscan`` instead). Both thresholds grow with
+the sensor's depth noise (square of depth) and the grid's spacing at that depth, so a wall 4 m away
+is one plane, not scattered noise. Masks carry neutral captions ("a planar surface", "an object"):
 the instances they fuse into are geometric, not semantic, and the run says so. Cross-frame fusion
 then links the per-frame pieces into instances, as it does for any segmenter's masks.
 
@@ -25,6 +28,8 @@ PLANE_CAPTION = "a planar surface"
 """Caption of a mask cut out as a plane (instances become "planar surface K")."""
 OBJECT_CAPTION = "an object"
 """Caption of a mask cut out as a Euclidean cluster (instances become "object K")."""
+CLUSTERINGS = ("organized", "dbscan")
+"""How the points off every plane are grouped (``GeometricSegmenterConfig.clustering``)."""
 
 
 @dataclass(frozen=True)
@@ -35,7 +40,14 @@ class GeometricSegmenterConfig:
     """Points per frame the segmentation works on (the pixel grid is strided to fit): at 160x120,
     10k points (stride 2) took 15 ms a frame and 20k (stride 1) 54 ms for the same masks."""
     plane_distance_m: float = 0.02
-    """RANSAC inlier distance (depth noise of a structured-light sensor at 2-3 m)."""
+    """RANSAC inlier distance, and a plane's membership distance where the sensor is more precise than
+    that (structured light: closer than about 2 m)."""
+    depth_noise_m_per_m2: float = 0.0015
+    """The sensor's depth noise at 1 m, growing with depth squared (Kinect v1: about 1.5 mm;
+    Khoshelham and Elberink 2012). A point belongs to a plane within ``max(plane_distance_m,
+    noise_sigmas x noise(z))``: at 4 m (noise 2.4 cm) a fixed 2 cm holds about 60 % of a wall."""
+    noise_sigmas: float = 3.0
+    """Depth-noise standard deviations a point may lie off its plane or its neighbour."""
     plane_min_share: float = 0.08
     """A plane must hold this share of the frame's points: smaller ones (a box's top) are left to the
     clustering, so an object is not cut into its faces."""
@@ -43,10 +55,16 @@ class GeometricSegmenterConfig:
     """Planes tried per frame."""
     ransac_iterations: int = 200
     """RANSAC iterations per plane."""
+    clustering: str = "organized"
+    """How the points off every plane are grouped: ``"organized"`` (grid neighbours joined when closer
+    than ``max(cluster_eps_m, 3 spacings + noise_sigmas x noise)`` at their depth) or ``"dbscan"``
+    (one neighbourhood for the whole frame: far points, sparser and noisier, fall out as noise; on a
+    TUM sequence only 64 % of the pixels at 3-4 m and 14 % beyond got a mask, against 89-90 % organized)."""
     cluster_eps_m: float = 0.05
-    """DBSCAN neighbourhood; raised to 3 point spacings where the grid is coarser than that."""
+    """Smallest joining distance (organized) or DBSCAN neighbourhood (raised to 3 point spacings at the
+    frame's median depth where the grid is coarser than that)."""
     cluster_min_points: int = 10
-    """DBSCAN core-point neighbours."""
+    """Smallest piece (organized) or DBSCAN core-point neighbours."""
     min_mask_pixels: int = 100
     """Masks with fewer full-resolution pixels are dropped (OpenObj's 100)."""
     seed: int = 0
@@ -58,6 +76,8 @@ class GeometricSegmenter:
 
     def __init__(self, config: GeometricSegmenterConfig | None = None):
         self.config = config or GeometricSegmenterConfig()
+        if self.config.clustering not in CLUSTERINGS:
+            raise ValueError(f"unknown clustering {self.config.clustering!r}; known: {', '.join(CLUSTERINGS)}")
 
     def segment(self, frame: Frame) -> FrameSegmentation:
         """Masks of ``frame`` with neutral captions; pixels without depth stay 0."""
@@ -89,8 +109,10 @@ class GeometricSegmenter:
         o3d.utility.random.seed(cfg.seed * 1_000_003 + frame.index)
         labels = np.zeros(len(points), np.int32)
         captions: list[str] = []
-        z = np.linalg.norm(points - frame.pose[:3, 3], axis=1)
-        eps = max(cfg.cluster_eps_m, 3.0 * float(np.median(z)) * stride / frame.intrinsics.fx)
+        z = frame.depth[::stride, ::stride][valid].astype(np.float64)  # depth of each point, row-major
+        spacing = z * stride / frame.intrinsics.fx  # distance between grid neighbours facing the camera
+        noise = cfg.noise_sigmas * cfg.depth_noise_m_per_m2 * z**2
+        plane_tolerance = np.maximum(cfg.plane_distance_m, noise)
         remaining = np.arange(len(points))
         min_plane = cfg.plane_min_share * len(points)
         for _ in range(cfg.max_planes):
@@ -104,7 +126,7 @@ class GeometricSegmenter:
             # RANSAC's best plane may cut strips off several parallel surfaces (two box tops at
             # different heights): refit it to its largest connected piece, then take that plane's inliers
             normal, offset = _fit_plane(points[remaining[np.asarray(inliers)][pieces[0]]])
-            members = remaining[np.abs(points[remaining] @ normal - offset) < cfg.plane_distance_m]
+            members = remaining[np.abs(points[remaining] @ normal - offset) < plane_tolerance[remaining]]
             for piece in _grid_pieces(members, valid):
                 if len(piece) >= min_plane / 4:  # coplanar pieces (two table tops) are planes; strips are not
                     captions.append(PLANE_CAPTION)
@@ -113,7 +135,13 @@ class GeometricSegmenter:
             if len(left) == len(remaining):
                 break
             remaining = left
-        for piece in _clusters(points[remaining], eps, cfg.cluster_min_points):
+        if cfg.clustering == "organized":
+            join = np.maximum(cfg.cluster_eps_m, 3.0 * spacing + noise)
+            pieces = _organized_clusters(points, remaining, valid, join, cfg.cluster_min_points)
+        else:
+            eps = max(cfg.cluster_eps_m, 3.0 * float(np.median(spacing)))
+            pieces = _clusters(points[remaining], eps, cfg.cluster_min_points)
+        for piece in pieces:
             captions.append(OBJECT_CAPTION)
             labels[remaining[piece]] = len(captions)
         return labels, captions
@@ -136,6 +164,40 @@ def _grid_pieces(members: np.ndarray, valid: np.ndarray) -> list[np.ndarray]:
     piece_of = pieces.ravel()[cells]
     groups = [np.flatnonzero(piece_of == k) for k in range(1, count + 1)]
     return sorted(groups, key=len, reverse=True)
+
+
+def _organized_clusters(points: np.ndarray, members: np.ndarray, valid: np.ndarray, join: np.ndarray,
+                        min_points: int) -> list[np.ndarray]:
+    """Positions in ``members`` of each connected piece they form when 8-neighbours on the pixel grid
+    closer than the larger of their ``join`` distances are linked (PCL's organized Euclidean clustering,
+    depth-dependent); pieces under ``min_points`` are left out. Largest first."""
+    from scipy.sparse import coo_matrix  # noqa: PLC0415
+    from scipy.sparse.csgraph import connected_components  # noqa: PLC0415
+
+    if len(members) < min_points:
+        return []
+    cells = np.flatnonzero(valid.ravel())[members]
+    position = np.full(valid.size, -1, np.int64)
+    position[cells] = np.arange(len(members))
+    rows, cols = np.divmod(cells, valid.shape[1])
+    heads, tails = [], []
+    for dr, dc in ((0, 1), (1, -1), (1, 0), (1, 1)):
+        r, c = rows + dr, cols + dc
+        inside = (r < valid.shape[0]) & (c >= 0) & (c < valid.shape[1])
+        other = np.full(len(members), -1, np.int64)
+        other[inside] = position[r[inside] * valid.shape[1] + c[inside]]
+        a = np.flatnonzero(other >= 0)
+        b = other[a]
+        pa, pb = members[a], members[b]
+        close = np.linalg.norm(points[pa] - points[pb], axis=1) < np.maximum(join[pa], join[pb])
+        heads.append(a[close])
+        tails.append(b[close])
+    head, tail = np.concatenate(heads), np.concatenate(tails)
+    graph = coo_matrix((np.ones(len(head), np.int8), (head, tail)), shape=(len(members), len(members)))
+    count, ids = connected_components(graph, directed=False)
+    sizes = np.bincount(ids, minlength=count)
+    order = np.argsort(-sizes, kind="stable")
+    return [np.flatnonzero(ids == k) for k in order if sizes[k] >= min_points]
 
 
 def _clusters(points: np.ndarray, eps: float, min_points: int) -> list[np.ndarray]:
