@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from mapping.data import Frame, Intrinsics
 from mapping.perception.geometric_segmenter import (OBJECT_CAPTION, PLANE_CAPTION, GeometricSegmenter,
+                                                    GeometricSegmenterConfig,
                                                     instance_caption)
 
 K = Intrinsics.from_fov(160, 120, 90.0)
@@ -73,3 +75,44 @@ def test_a_frame_without_depth_has_no_masks_and_captions_are_numbered():
     assert seg.segments == [] and not seg.labels.any()
     assert instance_caption(PLANE_CAPTION, 3) == "planar surface 3"
     assert instance_caption(OBJECT_CAPTION, 7) == "object 7"
+
+
+K_VGA = Intrinsics.from_fov(640, 480, 60.0)
+
+
+def _far_wall_and_box(seed: int = 0) -> tuple[Frame, np.ndarray, np.ndarray]:
+    """A camera facing a near plane (lower two thirds, 1.2 m) below a far wall (4.5 m) with a box face at
+    3.5 m before it, at 640x480 with structured-light noise (1.5 mm x depth^2): the frame's median depth
+    is near, so one threshold for the frame fits the near part only."""
+    depth = np.full((480, 640), 4.5)
+    depth[160:, :] = 1.2
+    box = np.zeros(depth.shape, bool)
+    box[40:120, 260:380] = True
+    depth[box] = 3.5
+    depth += np.random.default_rng(seed).normal(0.0, 0.0015 * depth**2)
+    rgb = np.full((*depth.shape, 3), 128, np.uint8)
+    far = np.zeros(depth.shape, bool)
+    far[:160] = True
+    return Frame(rgb, depth.astype(np.float32), np.eye(4), K_VGA, index=5), far & ~box, box
+
+
+def test_a_far_noisy_wall_is_one_plane_and_a_box_before_it_its_own_segment():
+    frame, wall, box = _far_wall_and_box()
+    seg = GeometricSegmenter().segment(frame)
+    wall_id, wall_share = _dominant(seg.labels, wall)
+    box_id, box_share = _dominant(seg.labels, box)
+    assert wall_id != 0 and wall_share > 0.95 and seg.segment(wall_id).caption == PLANE_CAPTION
+    assert box_id not in (0, wall_id) and box_share > 0.8
+    assert np.mean(seg.labels > 0) > 0.95
+
+
+def test_one_threshold_for_the_whole_frame_loses_the_far_wall():
+    # the segmenter before range-aware thresholds (fixed 2 cm planes, one DBSCAN radius for the frame)
+    frame, wall, _ = _far_wall_and_box()
+    before = GeometricSegmenter(GeometricSegmenterConfig(clustering="dbscan", depth_noise_m_per_m2=0.0))
+    assert np.mean(before.segment(frame).labels[wall] > 0) < 0.5
+
+
+def test_an_unknown_clustering_is_refused_by_name():
+    with pytest.raises(ValueError, match="unknown clustering 'kmeans'"):
+        GeometricSegmenter(GeometricSegmenterConfig(clustering="kmeans"))

@@ -119,7 +119,9 @@ class GeometricSegmenter:
             if len(remaining) < max(3, min_plane):
                 break
             cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points[remaining]))
-            _, inliers = cloud.segment_plane(cfg.plane_distance_m, 3, cfg.ransac_iterations)
+            # RANSAC takes one distance: the median point's tolerance (2 cm unless most points left are far)
+            ransac_distance = float(np.median(plane_tolerance[remaining]))
+            _, inliers = cloud.segment_plane(ransac_distance, 3, cfg.ransac_iterations)
             pieces = _grid_pieces(remaining[np.asarray(inliers)], valid)
             if not pieces or len(pieces[0]) < min_plane:
                 break
