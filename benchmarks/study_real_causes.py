@@ -21,8 +21,7 @@ Variants (``--variants`` picks some; the default runs all):
 | `carve` | `base`, every sample in front of an observed surface asked to be empty (weight 10) | free space in the box |
 | `carve_half` | `carve` and `other_half` | |
 | `planes_4cm` | `base`, the geometric segmenter's plane inlier distance 4 cm (was 2 cm) | segments at range |
-| `segmenter_before` | `base` with the segmenter before range-aware thresholds (fixed 2 cm planes, one DBSCAN radius) | segments at range |
-| `segmenter_organized_only` | `segmenter_before` with organized clustering (fixed 2 cm planes) | segments at range |
+| `segmenter_range_aware` | `base` with the segmenter's `RANGE_AWARE` thresholds (planes and clusters widen with depth noise) | segments at range |
 | `kinect_noise` | (``--scene``) the simulator's depth with Kinect v1's noise, 1.5 mm x depth^2 | depth noise at range |
 | `kinect_holes` | (``--scene``) 12 % of the depth pixels dropped at random | depth holes |
 | `kinect` | (``--scene``) both | |
@@ -54,7 +53,7 @@ import trimesh
 import mapping.data.source as data_source
 from mapping.agent_config import MappingConfig
 from mapping.evaluate.geometry import surface_classes
-from mapping.perception.geometric_segmenter import GeometricSegmenterConfig
+from mapping.perception.geometric_segmenter import RANGE_AWARE, GeometricSegmenterConfig
 from mapping.pipeline.records import write_json_atomic
 from openmulti_env.presets import PRESETS, Preset
 from openmulti_env.runs.run import run, run_data
@@ -83,8 +82,8 @@ class Variant:
     team: dict = field(default_factory=dict)
     sensor: dict = field(default_factory=dict)
     """``SensorConfig`` fields (simulated scenes only)."""
-    segmenter: dict = field(default_factory=dict)
-    """``GeometricSegmenterConfig`` fields (recordings without masks only)."""
+    segmenter: GeometricSegmenterConfig | None = None
+    """The geometric segmenter's settings (recordings without masks only; None: its defaults)."""
 
 
 VARIANTS: dict[str, Variant] = {
@@ -100,9 +99,8 @@ VARIANTS: dict[str, Variant] = {
     "carve": Variant(lambda m: replace(m, loss_weights=replace(m.loss_weights, free_space=10.0))),
     "carve_half": Variant(lambda m: replace(m, own_ray_fraction=0.5,
                                             loss_weights=replace(m.loss_weights, free_space=10.0))),
-    "planes_4cm": Variant(segmenter={"plane_distance_m": 0.04}),
-    "segmenter_before": Variant(segmenter={"clustering": "dbscan", "depth_noise_m_per_m2": 0.0}),
-    "segmenter_organized_only": Variant(segmenter={"depth_noise_m_per_m2": 0.0}),
+    "planes_4cm": Variant(segmenter=GeometricSegmenterConfig(plane_distance_m=0.04)),
+    "segmenter_range_aware": Variant(segmenter=RANGE_AWARE),
     "kinect_noise": Variant(sensor=KINECT_NOISE),
     "kinect_holes": Variant(sensor=KINECT_HOLES),
     "kinect": Variant(sensor={**KINECT_NOISE, **KINECT_HOLES}),
@@ -138,11 +136,11 @@ def _register(preset: str, variant: str) -> str:
 
 
 @contextlib.contextmanager
-def _segmenter(fields: dict):
-    """The data source's geometric segmenter with ``fields`` changed, for one run (this process only)."""
+def _segmenter(config: GeometricSegmenterConfig | None):
+    """The data source's geometric segmenter with ``config``, for one run (this process only)."""
     original = data_source.GeometricSegmenter
-    if fields:
-        data_source.GeometricSegmenter = lambda: original(GeometricSegmenterConfig(**fields))
+    if config is not None:
+        data_source.GeometricSegmenter = lambda: original(config)
     try:
         yield
     finally:

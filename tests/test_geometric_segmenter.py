@@ -7,7 +7,7 @@ import pytest
 
 from mapping.data import Frame, Intrinsics
 from mapping.perception.geometric_segmenter import (OBJECT_CAPTION, PLANE_CAPTION, GeometricSegmenter,
-                                                    GeometricSegmenterConfig,
+                                                    RANGE_AWARE, GeometricSegmenterConfig,
                                                     instance_caption)
 
 K = Intrinsics.from_fov(160, 120, 90.0)
@@ -98,7 +98,7 @@ def _far_wall_and_box(seed: int = 0) -> tuple[Frame, np.ndarray, np.ndarray]:
 
 def test_a_far_noisy_wall_is_one_plane_and_a_box_before_it_its_own_segment():
     frame, wall, box = _far_wall_and_box()
-    seg = GeometricSegmenter().segment(frame)
+    seg = GeometricSegmenter(RANGE_AWARE).segment(frame)
     wall_id, wall_share = _dominant(seg.labels, wall)
     box_id, box_share = _dominant(seg.labels, box)
     assert wall_id != 0 and wall_share > 0.95 and seg.segment(wall_id).caption == PLANE_CAPTION
@@ -107,10 +107,9 @@ def test_a_far_noisy_wall_is_one_plane_and_a_box_before_it_its_own_segment():
 
 
 def test_one_threshold_for_the_whole_frame_loses_the_far_wall():
-    # the segmenter before range-aware thresholds (fixed 2 cm planes, one DBSCAN radius for the frame)
+    # the default (fixed 2 cm planes, one DBSCAN radius for the frame)
     frame, wall, _ = _far_wall_and_box()
-    before = GeometricSegmenter(GeometricSegmenterConfig(clustering="dbscan", depth_noise_m_per_m2=0.0))
-    assert np.mean(before.segment(frame).labels[wall] > 0) < 0.5
+    assert np.mean(GeometricSegmenter().segment(frame).labels[wall] > 0) < 0.5
 
 
 def test_an_unknown_clustering_is_refused_by_name():

@@ -1,11 +1,13 @@
 """A geometric segmenter for RGB-D recordings that come without instance masks (TUM- or 7-Scenes-style).
 
-Per frame, on the back-projected depth: the large planes first (walls, floor, table tops; open3d's
-RANSAC ``segment_plane``), each split into its connected pieces on the pixel grid, then connected
-pieces of what remains (PCL's organized Euclidean clustering: grid neighbours closer than a threshold
-are joined; ``clustering="dbscan"`` is open3d's ``cluster_dbscan`` instead). Both thresholds grow with
-the sensor's depth noise (square of depth) and the grid's spacing at that depth, so a wall 4 m away
-is one plane, not scattered noise. Masks carry neutral captions ("a planar surface", "an object"):
+Per frame, on the back-projected depth: the large planes first (walls, floor, table tops; RANSAC),
+each split into its connected pieces on the pixel grid, then Euclidean clusters of what remains
+(open3d's ``cluster_dbscan``, one radius per frame). ``RANGE_AWARE`` is the
+other setting: plane membership and clustering (PCL's organized Euclidean clustering, grid neighbours
+joined when closer than a threshold) grow with the sensor's depth noise (square of depth) and the
+grid's spacing at each point's depth, so a wall 4 m away is one plane, not scattered noise. It labels
+more of a frame but, with today's mapper, makes worse maps of what it adds (docs/real_data.md), so it
+is not the default. Masks carry neutral captions ("a planar surface", "an object"):
 the instances they fuse into are geometric, not semantic, and the run says so. Cross-frame fusion
 then links the per-frame pieces into instances, as it does for any segmenter's masks.
 
@@ -42,10 +44,11 @@ class GeometricSegmenterConfig:
     plane_distance_m: float = 0.02
     """RANSAC inlier distance, and a plane's membership distance where the sensor is more precise than
     that (structured light: closer than about 2 m)."""
-    depth_noise_m_per_m2: float = 0.0015
+    depth_noise_m_per_m2: float = 0.0
     """The sensor's depth noise at 1 m, growing with depth squared (Kinect v1: about 1.5 mm;
     Khoshelham and Elberink 2012). A point belongs to a plane within ``max(plane_distance_m,
-    noise_sigmas x noise(z))``: at 4 m (noise 2.4 cm) a fixed 2 cm holds about 60 % of a wall."""
+    noise_sigmas x noise(z))``: at 4 m (noise 2.4 cm) a fixed 2 cm holds about 60 % of a wall.
+    0 (the default) keeps one plane distance at every depth."""
     noise_sigmas: float = 3.0
     """Depth-noise standard deviations a point may lie off its plane or its neighbour."""
     plane_min_share: float = 0.08
@@ -55,11 +58,11 @@ class GeometricSegmenterConfig:
     """Planes tried per frame."""
     ransac_iterations: int = 200
     """RANSAC iterations per plane."""
-    clustering: str = "organized"
-    """How the points off every plane are grouped: ``"organized"`` (grid neighbours joined when closer
-    than ``max(cluster_eps_m, 3 spacings + noise_sigmas x noise)`` at their depth) or ``"dbscan"``
-    (one neighbourhood for the whole frame: far points, sparser and noisier, fall out as noise; on a
-    TUM sequence only 64 % of the pixels at 3-4 m and 14 % beyond got a mask, against 89-90 % organized)."""
+    clustering: str = "dbscan"
+    """How the points off every plane are grouped: ``"dbscan"`` (one neighbourhood for the whole frame:
+    far points, sparser and noisier, fall out as noise; on a TUM sequence only 64 % of the pixels at
+    3-4 m and 14 % beyond got a mask) or ``"organized"`` (grid neighbours joined when closer than
+    ``max(cluster_eps_m, 3 spacings + noise_sigmas x noise)`` at their depth: 89-90 % there)."""
     cluster_eps_m: float = 0.05
     """Smallest joining distance (organized) or DBSCAN neighbourhood (raised to 3 point spacings at the
     frame's median depth where the grid is coarser than that)."""
@@ -68,8 +71,14 @@ class GeometricSegmenterConfig:
     min_mask_pixels: int = 100
     """Masks with fewer full-resolution pixels are dropped (OpenObj's 100)."""
     seed: int = 0
-    """Seed of RANSAC (open3d draws from its global generator, seeded per frame from this)."""
+    """Seed of RANSAC's draws, with the frame's index: a frame gets the same masks every time."""
 
+
+
+RANGE_AWARE = GeometricSegmenterConfig(depth_noise_m_per_m2=0.0015, clustering="organized")
+"""Thresholds that grow with a structured-light sensor's noise and the grid's spacing at each depth: far
+surfaces get masks (a TUM sequence: 98 % of its valid pixels labelled, against 94 %), but the maps of
+what they add are worse today (docs/real_data.md#segments-at-range)."""
 
 class GeometricSegmenter:
     """Planes plus Euclidean clusters of one frame, numbered 1..K (planes first, then clusters)."""
@@ -103,25 +112,20 @@ class GeometricSegmenter:
         pieces by connectivity on that grid (``scipy.ndimage.label``), which on a depth image is 3D
         connectivity within the plane at a fraction of DBSCAN's cost; the rest is clustered by DBSCAN.
         """
-        import open3d as o3d  # noqa: PLC0415
-
         cfg = self.config
-        o3d.utility.random.seed(cfg.seed * 1_000_003 + frame.index)
+        rng = np.random.default_rng((cfg.seed, frame.index))
         labels = np.zeros(len(points), np.int32)
         captions: list[str] = []
         z = frame.depth[::stride, ::stride][valid].astype(np.float64)  # depth of each point, row-major
         spacing = z * stride / frame.intrinsics.fx  # distance between grid neighbours facing the camera
-        noise = cfg.noise_sigmas * cfg.depth_noise_m_per_m2 * z**2
+        noise = cfg.noise_sigmas * cfg.depth_noise_m_per_m2 * z**2  # 0 by default
         plane_tolerance = np.maximum(cfg.plane_distance_m, noise)
         remaining = np.arange(len(points))
         min_plane = cfg.plane_min_share * len(points)
         for _ in range(cfg.max_planes):
             if len(remaining) < max(3, min_plane):
                 break
-            cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points[remaining]))
-            # RANSAC takes one distance: the median point's tolerance (2 cm unless most points left are far)
-            ransac_distance = float(np.median(plane_tolerance[remaining]))
-            _, inliers = cloud.segment_plane(ransac_distance, 3, cfg.ransac_iterations)
+            inliers = _ransac_plane(points[remaining], plane_tolerance[remaining], cfg.ransac_iterations, rng)
             pieces = _grid_pieces(remaining[np.asarray(inliers)], valid)
             if not pieces or len(pieces[0]) < min_plane:
                 break
@@ -141,12 +145,36 @@ class GeometricSegmenter:
             join = np.maximum(cfg.cluster_eps_m, 3.0 * spacing + noise)
             pieces = _organized_clusters(points, remaining, valid, join, cfg.cluster_min_points)
         else:
-            eps = max(cfg.cluster_eps_m, 3.0 * float(np.median(spacing)))
+            ranges = np.linalg.norm(points - frame.pose[:3, 3], axis=1)
+            eps = max(cfg.cluster_eps_m, 3.0 * float(np.median(ranges)) * stride / frame.intrinsics.fx)
             pieces = _clusters(points[remaining], eps, cfg.cluster_min_points)
         for piece in pieces:
             captions.append(OBJECT_CAPTION)
             labels[remaining[piece]] = len(captions)
         return labels, captions
+
+
+def _ransac_plane(points: np.ndarray, tolerance: np.ndarray, iterations: int, rng: np.random.Generator,
+                  block: int = 32, scored: int = 2_000) -> np.ndarray:
+    """Positions of the inliers (``|n . x - d| < tolerance``) of the plane through three of ``points``
+    that holds the most, over ``iterations`` draws. Written out rather than open3d's ``segment_plane``,
+    whose draws are not repeatable across calls in one process (the same frame got other planes in 12
+    of 54 frames). The hypotheses are scored ``block`` at a time with one matrix product, on every k-th
+    point (at most ``scored``): all 10,000 points cost 28 ms a call."""
+    triples = points[rng.integers(0, len(points), size=(iterations, 3))]
+    normals = np.cross(triples[:, 1] - triples[:, 0], triples[:, 2] - triples[:, 0])
+    lengths = np.linalg.norm(normals, axis=1)
+    keep = lengths > 1e-12  # three collinear or repeated points span no plane
+    if not keep.any():
+        return np.zeros(0, np.int64)
+    normals = normals[keep] / lengths[keep, None]
+    offsets = np.einsum("ij,ij->i", normals, triples[keep, 0])
+    step = -(-len(points) // scored)
+    sample, sample_tolerance = points[::step], tolerance[::step, None]
+    counts = np.concatenate([(np.abs(sample @ normals[s:s + block].T - offsets[s:s + block]) < sample_tolerance).sum(0)
+                             for s in range(0, len(normals), block)])
+    best = int(np.argmax(counts))  # the first of equals: repeatable
+    return np.flatnonzero(np.abs(points @ normals[best] - offsets[best]) < tolerance)
 
 
 def _fit_plane(points: np.ndarray) -> tuple[np.ndarray, float]:
