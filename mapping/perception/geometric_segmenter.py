@@ -125,7 +125,7 @@ class GeometricSegmenter:
         for _ in range(cfg.max_planes):
             if len(remaining) < max(3, min_plane):
                 break
-            inliers = _ransac_plane(points[remaining], plane_tolerance[remaining], cfg.ransac_iterations, rng)
+            inliers = ransac_plane(points[remaining], plane_tolerance[remaining], cfg.ransac_iterations, rng)
             pieces = _grid_pieces(remaining[np.asarray(inliers)], valid)
             if not pieces or len(pieces[0]) < min_plane:
                 break
@@ -154,7 +154,7 @@ class GeometricSegmenter:
         return labels, captions
 
 
-def _ransac_plane(points: np.ndarray, tolerance: np.ndarray, iterations: int, rng: np.random.Generator,
+def ransac_plane(points: np.ndarray, tolerance: np.ndarray, iterations: int, rng: np.random.Generator,
                   block: int = 32, scored: int = 2_000) -> np.ndarray:
     """Positions of the inliers (``|n . x - d| < tolerance``) of the plane through three of ``points``
     that holds the most, over ``iterations`` draws. Written out rather than open3d's ``segment_plane``,
