@@ -68,6 +68,9 @@ class GeometricSegmenterConfig:
     frame's median depth where the grid is coarser than that)."""
     cluster_min_points: int = 10
     """Smallest piece (organized) or DBSCAN core-point neighbours."""
+    max_depth_m: float | None = None
+    """Pixels deeper than this get no mask (None: every valid pixel is segmented). ``RANGE_AWARE`` uses
+    3.5 m, the far end of a Kinect v1's practical range, where its noise reaches 1.8 cm."""
     min_mask_pixels: int = 100
     """Masks with fewer full-resolution pixels are dropped (OpenObj's 100)."""
     seed: int = 0
@@ -92,19 +95,23 @@ class GeometricSegmenter:
         """Masks of ``frame`` with neutral captions; pixels without depth stay 0."""
         cfg = self.config
         h, w = frame.depth.shape
-        valid_count = int(np.count_nonzero(np.isfinite(frame.depth) & (frame.depth > 0)))
+        usable = np.isfinite(frame.depth) & (frame.depth > 0)
+        if cfg.max_depth_m is not None:
+            usable &= frame.depth <= cfg.max_depth_m
+        depth = np.where(usable, frame.depth, 0.0)
+        valid_count = int(np.count_nonzero(usable))
         stride = max(1, int(np.ceil(np.sqrt(valid_count / cfg.max_points)))) if valid_count else 1
-        points, valid = backproject_pixels(frame.depth, frame.intrinsics, frame.pose, stride=stride)
+        points, valid = backproject_pixels(depth, frame.intrinsics, frame.pose, stride=stride)
         grid = np.zeros(valid.shape, np.int32)
         captions: list[str] = []
         if len(points) >= cfg.cluster_min_points:
-            labels, captions = self._label_points(points, valid, frame, stride)
+            labels, captions = self._label_points(points, valid, depth, frame, stride)
             grid[valid] = labels
         full = np.repeat(np.repeat(grid, stride, axis=0), stride, axis=1)[:h, :w]
-        full[~(np.isfinite(frame.depth) & (frame.depth > 0))] = 0
+        full[~usable] = 0
         return _numbered(frame.index, full, captions, cfg.min_mask_pixels)
 
-    def _label_points(self, points: np.ndarray, valid: np.ndarray, frame: Frame,
+    def _label_points(self, points: np.ndarray, valid: np.ndarray, depth: np.ndarray, frame: Frame,
                       stride: int) -> tuple[np.ndarray, list[str]]:
         """(n,) labels 1..K of the points (0 = none) and the caption of each label.
 
@@ -116,7 +123,7 @@ class GeometricSegmenter:
         rng = np.random.default_rng((cfg.seed, frame.index))
         labels = np.zeros(len(points), np.int32)
         captions: list[str] = []
-        z = frame.depth[::stride, ::stride][valid].astype(np.float64)  # depth of each point, row-major
+        z = depth[::stride, ::stride][valid].astype(np.float64)  # depth of each point, row-major
         spacing = z * stride / frame.intrinsics.fx  # distance between grid neighbours facing the camera
         noise = cfg.noise_sigmas * cfg.depth_noise_m_per_m2 * z**2  # 0 by default
         plane_tolerance = np.maximum(cfg.plane_distance_m, noise)
