@@ -204,10 +204,11 @@ def _grid_pieces(members: np.ndarray, valid: np.ndarray) -> list[np.ndarray]:
 
 
 def _organized_clusters(points: np.ndarray, members: np.ndarray, valid: np.ndarray, join: np.ndarray,
-                        min_points: int) -> list[np.ndarray]:
+                        min_points: int, core_neighbours: int = 6) -> list[np.ndarray]:
     """Positions in ``members`` of each connected piece they form when 8-neighbours on the pixel grid
     closer than the larger of their ``join`` distances are linked (PCL's organized Euclidean clustering,
-    depth-dependent); pieces under ``min_points`` are left out. Largest first."""
+    depth-dependent, with DBSCAN's core points: ``core_neighbours`` of 8 linked); pieces under
+    ``min_points`` and points with no core neighbour are left out. Largest first."""
     from scipy.sparse import coo_matrix  # noqa: PLC0415
     from scipy.sparse.csgraph import connected_components  # noqa: PLC0415
 
@@ -230,9 +231,18 @@ def _organized_clusters(points: np.ndarray, members: np.ndarray, valid: np.ndarr
         heads.append(a[close])
         tails.append(b[close])
     head, tail = np.concatenate(heads), np.concatenate(tails)
-    graph = coo_matrix((np.ones(len(head), np.int8), (head, tail)), shape=(len(members), len(members)))
-    count, ids = connected_components(graph, directed=False)
-    sizes = np.bincount(ids, minlength=count)
+    # as DBSCAN on the grid: pieces grow through core points (most of their 8 neighbours joined), and a
+    # border point joins the piece of a core neighbour, so a trail of stray points bridges nothing
+    degree = np.bincount(head, minlength=len(members)) + np.bincount(tail, minlength=len(members))
+    core = degree >= core_neighbours
+    inner = core[head] & core[tail]
+    graph = coo_matrix((np.ones(int(inner.sum()), np.int8), (head[inner], tail[inner])),
+                       shape=(len(members), len(members)))
+    _, ids = connected_components(graph, directed=False)
+    ids = np.where(core, ids, -1)
+    border = np.concatenate([np.c_[tail, head][core[head] & ~core[tail]], np.c_[head, tail][core[tail] & ~core[head]]])
+    ids[border[::-1, 0]] = ids[border[::-1, 1]]  # each border point takes a core neighbour's piece
+    sizes = np.bincount(ids[ids >= 0], minlength=int(ids.max(initial=-1)) + 1)
     order = np.argsort(-sizes, kind="stable")
     return [np.flatnonzero(ids == k) for k in order if sizes[k] >= min_points]
 
