@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -139,3 +141,20 @@ def test_ransac_finds_the_plane_with_most_points_and_survives_degenerate_points(
     assert np.mean(inliers < 600) > 0.95 and np.sum(inliers < 600) > 0.95 * 600  # the floor, not the wall
     same = np.zeros((50, 3))  # every triple degenerate: no plane, no crash
     assert len(ransac_plane(same, np.full(50, 0.02), 20, np.random.default_rng(0))) == 0
+
+
+def test_a_trail_of_stray_points_does_not_join_two_objects():
+    # two small things on the floor joined by a one-cell-wide line at their height: the line's points have
+    # two linked neighbours, not the core's six, so it bridges nothing (as in DBSCAN)
+    depth = np.full((120, 160), 2.0)
+    depth[40:70, 30:60] = 1.5
+    depth[40:70, 100:130] = 1.5
+    depth[54:56, 60:100] = 1.5  # 2 pixels = one cell of the stride-2 grid
+    clusters_only = replace(RANGE_AWARE, max_planes=0)  # (as planes, coplanar pieces are joined on purpose)
+    seg = GeometricSegmenter(clusters_only).segment(_looking_down(depth))
+    left_box, right_box = np.zeros(depth.shape, bool), np.zeros(depth.shape, bool)
+    left_box[40:70, 30:60] = right_box[40:70, 100:130] = True
+    left, share_left = _dominant(seg.labels, left_box)
+    right, share_right = _dominant(seg.labels, right_box)
+    assert 0 not in (left, right) and left != right and share_left > 0.9 and share_right > 0.9
+    assert seg.segment(left).caption == seg.segment(right).caption == OBJECT_CAPTION

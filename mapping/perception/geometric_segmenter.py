@@ -69,8 +69,8 @@ class GeometricSegmenterConfig:
     cluster_min_points: int = 10
     """Smallest piece (organized) or DBSCAN core-point neighbours."""
     max_depth_m: float | None = None
-    """Pixels deeper than this get no mask (None: every valid pixel is segmented). ``RANGE_AWARE`` uses
-    3.5 m, the far end of a Kinect v1's practical range, where its noise reaches 1.8 cm."""
+    """Pixels deeper than this get no mask (None: every valid pixel is segmented). E.g. 3.5 m, the far
+    end of a Kinect v1's practical range, where its noise reaches 1.8 cm."""
     min_mask_pixels: int = 100
     """Masks with fewer full-resolution pixels are dropped (OpenObj's 100)."""
     seed: int = 0
