@@ -144,14 +144,16 @@ def test_ransac_finds_the_plane_with_most_points_and_survives_degenerate_points(
 
 
 def test_a_trail_of_stray_points_does_not_join_two_objects():
-    # two small things on the floor joined by a one-cell-wide line at their height: the line's points have
-    # two linked neighbours, not the core's six, so it bridges nothing (as in DBSCAN)
+    # two small things on the floor joined by a one-cell-wide line at their height: with the core rule the
+    # line's points have two linked neighbours, not the core's six, so it bridges nothing (as in DBSCAN)
     depth = np.full((120, 160), 2.0)
     depth[40:70, 30:60] = 1.5
     depth[40:70, 100:130] = 1.5
     depth[54:56, 60:100] = 1.5  # 2 pixels = one cell of the stride-2 grid
     clusters_only = replace(RANGE_AWARE, max_planes=0)  # (as planes, coplanar pieces are joined on purpose)
-    seg = GeometricSegmenter(clusters_only).segment(_looking_down(depth))
+    joined = GeometricSegmenter(clusters_only).segment(_looking_down(depth))
+    assert len({int(joined.labels[55, 45]), int(joined.labels[55, 115])}) == 1  # without it: one piece
+    seg = GeometricSegmenter(replace(clusters_only, cluster_core_neighbours=6)).segment(_looking_down(depth))
     left_box, right_box = np.zeros(depth.shape, bool), np.zeros(depth.shape, bool)
     left_box[40:70, 30:60] = right_box[40:70, 100:130] = True
     left, share_left = _dominant(seg.labels, left_box)
