@@ -22,6 +22,7 @@ Variants (``--variants`` picks some; the default runs all):
 | `carve_half` | `carve` and `other_half` | |
 | `planes_4cm` | `base`, the geometric segmenter's plane inlier distance 4 cm (was 2 cm) | segments at range |
 | `segmenter_range_aware` | `base` with the segmenter's `RANGE_AWARE` thresholds (planes and clusters widen with depth noise) | segments at range |
+| `segmenter_range_aware_core6` | `segmenter_range_aware` with DBSCAN's core rule (6 of 8 grid neighbours) | segments at range |
 | `segmenter_range_aware_3m5` | `segmenter_range_aware`, no masks beyond 3.5 m | segments at range |
 | `kinect_noise` | (``--scene``) the simulator's depth with Kinect v1's noise, 1.5 mm x depth^2 | depth noise at range |
 | `kinect_holes` | (``--scene``) 12 % of the depth pixels dropped at random | depth holes |
@@ -102,6 +103,7 @@ VARIANTS: dict[str, Variant] = {
                                             loss_weights=replace(m.loss_weights, free_space=10.0))),
     "planes_4cm": Variant(segmenter=GeometricSegmenterConfig(plane_distance_m=0.04)),
     "segmenter_range_aware": Variant(segmenter=RANGE_AWARE),
+    "segmenter_range_aware_core6": Variant(segmenter=replace(RANGE_AWARE, cluster_core_neighbours=6)),
     "segmenter_range_aware_3m5": Variant(segmenter=replace(RANGE_AWARE, max_depth_m=3.5)),
     "kinect_noise": Variant(sensor=KINECT_NOISE),
     "kinect_holes": Variant(sensor=KINECT_HOLES),
