@@ -130,6 +130,8 @@ def test_a_frame_gets_the_same_masks_every_time_and_the_seed_moves_them():
     for config in (RANGE_AWARE, GeometricSegmenterConfig(seed=1)):
         assert np.array_equal(GeometricSegmenter(config).segment(frame).labels,
                               GeometricSegmenter(config).segment(frame).labels)
+    other_seed = GeometricSegmenter(replace(RANGE_AWARE, seed=1)).segment(frame)
+    assert not np.array_equal(GeometricSegmenter(RANGE_AWARE).segment(frame).labels, other_seed.labels)
 
 
 def test_ransac_finds_the_plane_with_most_points_and_survives_degenerate_points():
@@ -152,7 +154,7 @@ def test_a_trail_of_stray_points_does_not_join_two_objects():
     depth[54:56, 60:100] = 1.5  # 2 pixels = one cell of the stride-2 grid
     clusters_only = replace(RANGE_AWARE, max_planes=0)  # (as planes, coplanar pieces are joined on purpose)
     joined = GeometricSegmenter(clusters_only).segment(_looking_down(depth))
-    assert len({int(joined.labels[55, 45]), int(joined.labels[55, 115])}) == 1  # without it: one piece
+    assert joined.labels[55, 45] != 0 and joined.labels[55, 45] == joined.labels[55, 115]  # without it: one piece
     seg = GeometricSegmenter(replace(clusters_only, cluster_core_neighbours=6)).segment(_looking_down(depth))
     left_box, right_box = np.zeros(depth.shape, bool), np.zeros(depth.shape, bool)
     left_box[40:70, 30:60] = right_box[40:70, 100:130] = True
@@ -160,3 +162,16 @@ def test_a_trail_of_stray_points_does_not_join_two_objects():
     right, share_right = _dominant(seg.labels, right_box)
     assert 0 not in (left, right) and left != right and share_left > 0.9 and share_right > 0.9
     assert seg.segment(left).caption == seg.segment(right).caption == OBJECT_CAPTION
+
+
+def test_pixels_beyond_max_depth_get_no_mask_and_the_rest_is_segmented_as_before():
+    frame, wall, box = _far_wall_and_box()
+    capped = GeometricSegmenter(replace(RANGE_AWARE, max_depth_m=4.0)).segment(frame)
+    assert not capped.labels[wall].any()  # the wall at 4.5 m
+    box_id, share = _dominant(capped.labels, box)
+    assert box_id != 0 and share > 0.8
+    assert np.mean(capped.labels[160:] > 0) > 0.95  # the near plane
+
+
+def test_ransac_on_too_few_points_finds_nothing():
+    assert len(ransac_plane(np.zeros((2, 3)), np.full(2, 0.02), 10, np.random.default_rng(0))) == 0

@@ -82,12 +82,12 @@ class GeometricSegmenterConfig:
     """Seed of RANSAC's draws, with the frame's index: a frame gets the same masks every time."""
 
 
-
 RANGE_AWARE = GeometricSegmenterConfig(depth_noise_m_per_m2=0.0015, clustering="organized")
 """Thresholds that grow with a structured-light sensor's noise and the grid's spacing at each depth: far
 surfaces get masks (a TUM sequence: 97 % of its valid pixels labelled, against 94 %). Measured: on a
 7-Scenes sequence (all within 3 m) 13 % of the depth check off against 20-27 %; on TUM (out to 5 m) worse,
 36-45 % against 25-28 % (docs/real_data.md#segments-at-range)."""
+
 
 class GeometricSegmenter:
     """Planes plus Euclidean clusters of one frame, numbered 1..K (planes first, then clusters)."""
@@ -175,6 +175,8 @@ def ransac_plane(points: np.ndarray, tolerance: np.ndarray, iterations: int, rng
     whose draws are not repeatable across calls in one process (the same frame got other planes in 12
     of 54 frames). The hypotheses are scored ``block`` at a time with one matrix product, on every k-th
     point (at most ``scored``): all 10,000 points cost 28 ms a call."""
+    if len(points) < 3:
+        return np.zeros(0, np.int64)
     triples = points[rng.integers(0, len(points), size=(iterations, 3))]
     normals = np.cross(triples[:, 1] - triples[:, 0], triples[:, 2] - triples[:, 0])
     lengths = np.linalg.norm(normals, axis=1)
@@ -185,8 +187,9 @@ def ransac_plane(points: np.ndarray, tolerance: np.ndarray, iterations: int, rng
     offsets = np.einsum("ij,ij->i", normals, triples[keep, 0])
     step = -(-len(points) // scored)
     sample, sample_tolerance = points[::step], tolerance[::step, None]
-    counts = np.concatenate([(np.abs(sample @ normals[s:s + block].T - offsets[s:s + block]) < sample_tolerance).sum(0)
-                             for s in range(0, len(normals), block)])
+    counts = np.concatenate([
+        (np.abs(sample @ normals[s:s + block].T - offsets[s:s + block]) < sample_tolerance).sum(0)
+        for s in range(0, len(normals), block)])
     best = int(np.argmax(counts))  # the first of equals: repeatable
     return np.flatnonzero(np.abs(points @ normals[best] - offsets[best]) < tolerance)
 
@@ -248,10 +251,11 @@ def _organized_clusters(points: np.ndarray, members: np.ndarray, valid: np.ndarr
     _, ids = connected_components(graph, directed=False)
     ids = np.where(core, ids, -1)
     border = np.concatenate([np.c_[tail, head][core[head] & ~core[tail]], np.c_[head, tail][core[tail] & ~core[head]]])
-    ids[border[::-1, 0]] = ids[border[::-1, 1]]  # each border point takes a core neighbour's piece
+    _, first = np.unique(border[:, 0], return_index=True)  # each border point takes its first core neighbour's piece
+    ids[border[first, 0]] = ids[border[first, 1]]
     sizes = np.bincount(ids[ids >= 0], minlength=int(ids.max(initial=-1)) + 1)
     order = np.argsort(-sizes, kind="stable")
-    return [np.flatnonzero(ids == k) for k in order if sizes[k] >= min_points]
+    return [np.flatnonzero(ids == k) for k in order if sizes[k] >= max(min_points, 1)]
 
 
 def _clusters(points: np.ndarray, eps: float, min_points: int) -> list[np.ndarray]:
