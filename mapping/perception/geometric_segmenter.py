@@ -123,14 +123,14 @@ class GeometricSegmenter:
 
         ``valid`` is the pixel grid the points came from (row-major): a plane's inliers are split into
         pieces by connectivity on that grid (``scipy.ndimage.label``), which on a depth image is 3D
-        connectivity within the plane at a fraction of DBSCAN's cost; the rest is clustered by DBSCAN.
+        connectivity within the plane at a fraction of DBSCAN's cost; the rest is clustered by
+        ``config.clustering``.
         """
         cfg = self.config
         rng = np.random.default_rng((cfg.seed, frame.index))
         labels = np.zeros(len(points), np.int32)
         captions: list[str] = []
         z = depth[::stride, ::stride][valid].astype(np.float64)  # depth of each point, row-major
-        spacing = z * stride / frame.intrinsics.fx  # distance between grid neighbours facing the camera
         noise = cfg.noise_sigmas * cfg.depth_noise_m_per_m2 * z**2  # 0 by default
         plane_tolerance = np.maximum(cfg.plane_distance_m, noise)
         remaining = np.arange(len(points))
@@ -138,13 +138,13 @@ class GeometricSegmenter:
         for _ in range(cfg.max_planes):
             if len(remaining) < max(3, min_plane):
                 break
-            inliers = ransac_plane(points[remaining], plane_tolerance[remaining], cfg.ransac_iterations, rng)
-            pieces = _grid_pieces(remaining[np.asarray(inliers)], valid)
+            inliers = remaining[ransac_plane(points[remaining], plane_tolerance[remaining], cfg.ransac_iterations, rng)]
+            pieces = _grid_pieces(inliers, valid)
             if not pieces or len(pieces[0]) < min_plane:
                 break
             # RANSAC's best plane may cut strips off several parallel surfaces (two box tops at
             # different heights): refit it to its largest connected piece, then take that plane's inliers
-            normal, offset = _fit_plane(points[remaining[np.asarray(inliers)][pieces[0]]])
+            normal, offset = _fit_plane(points[inliers[pieces[0]]])
             members = remaining[np.abs(points[remaining] @ normal - offset) < plane_tolerance[remaining]]
             for piece in _grid_pieces(members, valid):
                 if len(piece) >= min_plane / 4:  # coplanar pieces (two table tops) are planes; strips are not
@@ -155,6 +155,7 @@ class GeometricSegmenter:
                 break
             remaining = left
         if cfg.clustering == "organized":
+            spacing = z * stride / frame.intrinsics.fx  # distance between grid neighbours facing the camera
             join = np.maximum(cfg.cluster_eps_m, 3.0 * spacing + noise)
             pieces = _organized_clusters(points, remaining, valid, join, cfg.cluster_min_points,
                                          cfg.cluster_core_neighbours)
@@ -214,7 +215,7 @@ def _grid_pieces(members: np.ndarray, valid: np.ndarray) -> list[np.ndarray]:
 
 
 def _organized_clusters(points: np.ndarray, members: np.ndarray, valid: np.ndarray, join: np.ndarray,
-                        min_points: int, core_neighbours: int = 0) -> list[np.ndarray]:
+                        min_points: int, core_neighbours: int) -> list[np.ndarray]:
     """Positions in ``members`` of each connected piece they form when 8-neighbours on the pixel grid
     closer than the larger of their ``join`` distances are linked (PCL's organized Euclidean clustering,
     depth-dependent, with DBSCAN's core points: ``core_neighbours`` of 8 linked); pieces under
@@ -250,8 +251,10 @@ def _organized_clusters(points: np.ndarray, members: np.ndarray, valid: np.ndarr
                        shape=(len(members), len(members)))
     _, ids = connected_components(graph, directed=False)
     ids = np.where(core, ids, -1)
-    border = np.concatenate([np.c_[tail, head][core[head] & ~core[tail]], np.c_[head, tail][core[tail] & ~core[head]]])
-    _, first = np.unique(border[:, 0], return_index=True)  # each border point takes its first core neighbour's piece
+    # (border point, core neighbour) pairs; each border point takes its first core neighbour's piece
+    border = np.concatenate([np.c_[tail, head][core[head] & ~core[tail]],
+                             np.c_[head, tail][core[tail] & ~core[head]]])
+    _, first = np.unique(border[:, 0], return_index=True)
     ids[border[first, 0]] = ids[border[first, 1]]
     sizes = np.bincount(ids[ids >= 0], minlength=int(ids.max(initial=-1)) + 1)
     order = np.argsort(-sizes, kind="stable")
