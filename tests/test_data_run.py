@@ -12,7 +12,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+import mapping.data.source as source
 from mapping.data import DatasetError, DatasetWarning
+from mapping.perception.geometric_segmenter import RANGE_AWARE, segmenter_settings
 from openmulti_env.runs.cli import main
 from mapping.pipeline.records import forget_stale_checkpoints
 from openmulti_env.runs.run import run_data
@@ -147,6 +149,32 @@ def test_bad_policies_and_options_are_refused_naming_the_problem(tmp_path, capsy
     assert not (tmp_path / "metrics.json").exists()
 
 
+def test_segmenter_settings_reach_the_geometric_segmenter_and_bad_ones_are_named(tmp_path, monkeypatch, capsys):
+    seen = []
+
+    class Spy(source.GeometricSegmenter):
+        def __init__(self, config=None):
+            seen.append(config)
+            super().__init__(config)
+
+    monkeypatch.setattr(source, "GeometricSegmenter", Spy)
+    inputs = source.prepare_inputs(NICE_SLAM, agents=1, frames="0:6:3", segmenter_config=RANGE_AWARE, progress=False)
+    assert seen == [RANGE_AWARE] and any("geometric segmenter" in n for n in inputs.notes)
+    inputs = source.prepare_inputs(REPLICA, agents=1, frames="0:6:3", segmenter_config=RANGE_AWARE, progress=False)
+    assert seen == [RANGE_AWARE] and any("settings are not used" in n for n in inputs.notes)
+    assert segmenter_settings("range_aware") is RANGE_AWARE
+    with pytest.raises(ValueError, match="unknown segmenter settings 'sideways'; known: fixed, range_aware"):
+        run_data(NICE_SLAM, 1, "never", "tiny", 0, tmp_path, segmenter="sideways")
+    base = ["run", "--preset", "tiny", "--out", str(tmp_path)]
+    with pytest.raises(SystemExit) as exited:
+        main(base + ["--data", str(NICE_SLAM), "--segmenter", "sideways"])
+    assert exited.value.code == 2
+    assert "invalid choice: 'sideways'" in capsys.readouterr().err
+    assert main(base + ["--scene", "room0", "--segmenter", "range_aware"]) == 2
+    assert "--segmenter is for --data" in capsys.readouterr().err
+    assert not (tmp_path / "metrics.json").exists()
+
+
 # --------------------------------------------------------------------------- bad input
 
 
@@ -213,3 +241,8 @@ def test_option_strings_and_meshes_are_checked(tmp_path):
     # intrinsics override: four numbers for the images' size
     seq = load_agents(REPLICA, "auto", 1, intrinsics="41,42,39.5,29.5")["agent_0"]
     assert (seq.intrinsics.width, seq.intrinsics.fx, seq.intrinsics.fy) == (80, 41.0, 42.0)
+
+
+def test_two_frame_sequences_are_checked_without_reading_past_their_end():
+    for frames in ("0:6:3", "0:2:1"):
+        check_sequence(load_agents(REPLICA, "auto", 1, frames=frames))

@@ -27,7 +27,7 @@ from mapping.data.labels import dataset_categories
 from mapping.evaluate.reference import TSDFConfig, TSDFReference
 from mapping.perception import FrameSegmentation, TextEncoder
 from mapping.perception.front_end import encode_segments
-from mapping.perception.geometric_segmenter import GeometricSegmenter, instance_caption
+from mapping.perception.geometric_segmenter import GeometricSegmenter, GeometricSegmenterConfig, instance_caption
 from mapping.perception.image_encoder import ImageTextEncoder
 from mapping.perception.segmenter import DatasetMaskSegmenter
 from mapping.pointcloud import voxel_downsample
@@ -114,7 +114,7 @@ def check_sequence(agents: dict[str, RGBDDataset]) -> None:
     sample = [first[i] for i in sorted({0, len(first) // 2, len(first) - 1})]
     check_depth_unit(sample, f"{first.files[0].depth.parent}", first.depth_scale)
     for name, seq in agents.items():
-        starts = sorted({0, len(seq) // 2, len(seq) - 2}) if len(seq) >= 2 else []
+        starts = sorted({i for i in (0, len(seq) // 2, len(seq) - 2) if 0 <= i < len(seq) - 1})  # pairs (i, i + 1)
         check_poses([(seq[i], seq[i + 1]) for i in starts], f"{seq.root / POSE_FILES[seq.kind]} ({name}'s frames)")
 
 
@@ -122,8 +122,12 @@ def prepare_inputs(path: str | Path, kind: str = "auto", agents: int = 1, frames
                    intrinsics: str | None = None, depth_scale: float | None = None, gt_mesh: str | None = None,
                    text_encoder: TextEncoder | None = None, image_encoder: ImageTextEncoder | None = None,
                    tsdf: TSDFConfig | None = None,
-                   culling_edge_m: float = 0.05, seed: int = 0, progress: bool = True) -> DataInputs:
-    """Read, check, segment, caption and encode every agent's frames; build the ground truth."""
+                   culling_edge_m: float = 0.05, seed: int = 0, progress: bool = True,
+                   segmenter_config: GeometricSegmenterConfig | None = None) -> DataInputs:
+    """Read, check, segment, caption and encode every agent's frames; build the ground truth.
+
+    ``segmenter_config`` sets the geometric segmenter's thresholds for data without instance images (None:
+    its defaults); data with instance images ignore it."""
     from mapping.perception import shared_text_encoder  # noqa: PLC0415
 
     encoder = text_encoder or shared_text_encoder()
@@ -135,11 +139,14 @@ def prepare_inputs(path: str | Path, kind: str = "auto", agents: int = 1, frames
     notes = []
     if has_masks:
         segmenter = DatasetMaskSegmenter(categories)
+        if segmenter_config not in (None, GeometricSegmenterConfig()):
+            notes.append(f"{first.root}: the data set has instance images, which give the masks: the geometric "
+                         "segmenter's settings are not used")
         if not categories:
             notes.append(f"{first.root}: instance images but no label file (info_semantic.json / *.aggregation.json): "
                          "instances are class-agnostic, F-mIoU/F-mAcc are not scored")
     else:
-        segmenter = GeometricSegmenter()
+        segmenter = GeometricSegmenter(segmenter_config)
         notes.append("no instance masks in the data: masks from the geometric segmenter (planes + Euclidean "
                      "clusters); semantics are geometric only, F-mIoU/F-mAcc are not scored")
     reference = TSDFReference(tsdf) if gt_mesh is None else None

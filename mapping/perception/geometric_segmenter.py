@@ -88,6 +88,17 @@ surfaces get masks (a TUM sequence: 97 % of its valid pixels labelled, against 9
 7-Scenes sequence (all within 3 m) 13 % of the depth check off against 20-27 %; on TUM (out to 5 m) worse,
 36-45 % against 25-28 % (docs/real_data.md#segments-at-range)."""
 
+SEGMENTER_SETTINGS = {"fixed": GeometricSegmenterConfig(), "range_aware": RANGE_AWARE}
+"""The geometric segmenter's settings by name (``openmulti run --data DIR --segmenter NAME``): ``fixed``
+thresholds (the default) or ``range_aware`` ones (for recordings within about 3 m)."""
+
+
+def segmenter_settings(name: str) -> GeometricSegmenterConfig:
+    """The settings called ``name`` in ``SEGMENTER_SETTINGS`` (ValueError listing the known names)."""
+    if name not in SEGMENTER_SETTINGS:
+        raise ValueError(f"unknown segmenter settings {name!r}; known: {', '.join(SEGMENTER_SETTINGS)}")
+    return SEGMENTER_SETTINGS[name]
+
 
 class GeometricSegmenter:
     """Planes plus Euclidean clusters of one frame, numbered 1..K (planes first, then clusters)."""

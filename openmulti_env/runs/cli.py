@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from mapping.perception.geometric_segmenter import SEGMENTER_SETTINGS
 from mapping.perception.image_encoder import ImageEncoderError
 from mapping.perception.text_encoder import TextEncoderError
 from mapping.team.consistency import MISSING_EDGES
@@ -114,6 +115,9 @@ def cmd_run(args: argparse.Namespace) -> int:
           f"policy {policy}, alignment {args.alignment}, consistency {args.consistency}"
           f"{'' if args.cross_rendering else ', no cross rendering'}")
     if args.data is None:
+        if args.segmenter != "fixed":
+            raise ValueError("--segmenter is for --data without instance images; the simulator's masks come from "
+                             "its own error model (--perfect-masks turns it off)")
         metrics = run(args.scene, args.agents, policy, args.preset, args.seed, out,
                       segmentation_errors=not args.perfect_masks, **team_options)
     else:
@@ -122,7 +126,7 @@ def cmd_run(args: argparse.Namespace) -> int:
                              "are the data set's instance images or the geometric segmenter's")
         metrics = run_data(args.data, args.agents, policy, args.preset, args.seed, out, kind=args.kind,
                            gt_mesh=args.gt_mesh, frames=args.frames, intrinsics=args.intrinsics,
-                           depth_scale=args.depth_scale, **team_options)
+                           depth_scale=args.depth_scale, segmenter=args.segmenter, **team_options)
     fields = set(RunResult.__dataclass_fields__) - {"extra"}
     result = RunResult(**{k: v for k, v in metrics.items() if k in fields},
                        extra={k: v for k, v in metrics.items() if k not in fields})
@@ -261,6 +265,10 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--intrinsics", metavar="FX,FY,CX,CY", help="override the data set's camera")
     g.add_argument("--depth-scale", type=float, metavar="UNITS", help="raw depth units per metre (Replica 1000 "
                    "vMAP / 6553.5 NICE-SLAM, ScanNet 1000; default: the layout's or cam_params.json)")
+    g.add_argument("--segmenter", choices=tuple(SEGMENTER_SETTINGS), default="fixed",
+                   help="the geometric segmenter's thresholds, for data without instance images: fixed, or "
+                   "range_aware (planes and clusters widen with a structured-light sensor's noise at depth; better "
+                   "on recordings within about 3 m, worse beyond: docs/real_data.md)")
     p.set_defaults(func=cmd_run)
 
     p = sub.add_parser("query", help="open-vocabulary instance retrieval on a finished run", formatter_class=fmt)

@@ -18,6 +18,7 @@ from mapping.data.source import DataSource, prepare_inputs
 from mapping.field import OBJECT_FIELD
 from mapping.perception import shared_text_encoder
 from mapping.perception.errors import SegmentationErrorConfig
+from mapping.perception.geometric_segmenter import segmenter_settings
 from mapping.perception.image_encoder import VisualFeatureNotice, load_image_encoder
 from mapping.pipeline import RunConfig, Schedule, SourceRecord, run_team
 from mapping.runtime import available_cores, set_threads
@@ -87,6 +88,7 @@ def run(scene: str, agents: int, policy: str, preset: str, seed: int, out: Path,
     """
     if global_form not in GLOBAL_FORMS:
         raise ValueError(f"unknown global_form {global_form!r}; choose one of {GLOBAL_FORMS}")
+    segmenter_config = segmenter_settings(segmenter)
     begun = begin_run(preset, policy, agents, alignment, consistency, comm_budget_mb, threads, workers, seed,
                       clip_checkpoint)
     chosen, scripted, workers, image_encoder = begun.preset, begun.policy, begun.workers, begun.image_encoder
@@ -137,15 +139,16 @@ def run_data(data: str | Path, agents: int, policy: str, preset: str, seed: int,
              threads: int | None = None, checkpoint_every: int = 5, progress: bool = True,
              max_rounds: int | None = None, workers: int | None = None, missing_edges: str = "skip",
              processes: str | None = None, holdout_every: int | None = None, learner: str = "per_agent",
-             evaluate: bool = True) -> dict:
+             evaluate: bool = True, segmenter: str = "fixed") -> dict:
     """A team run on a real RGB-D data set split into ``agents`` contiguous sequences; returns the metrics
     written to ``out/metrics.json``.
 
     Args:
         data: the data set folder (Replica vMAP or NICE-SLAM layout, or a ScanNet export).
-        kind, gt_mesh, frames, intrinsics, depth_scale: see ``openmulti run --help``.
+        kind, gt_mesh, frames, intrinsics, depth_scale, segmenter: see ``openmulti run --help``.
         the rest: as ``run``.
     """
+    segmenter_config = segmenter_settings(segmenter)
     begun = begin_run(preset, policy, agents, alignment, consistency, comm_budget_mb, threads, workers, seed,
                       clip_checkpoint)
     chosen, scripted, workers, image_encoder = begun.preset, begun.policy, begun.workers, begun.image_encoder
@@ -154,7 +157,8 @@ def run_data(data: str | Path, agents: int, policy: str, preset: str, seed: int,
                          "fixed schedules (always, never, round_robin, budget, every:K, rate:Q, bernoulli:P)")
     encoder = shared_text_encoder(name=chosen.text_encoder)
     inputs = prepare_inputs(data, kind, agents, frames, intrinsics, depth_scale, gt_mesh, encoder, image_encoder,
-                            culling_edge_m=chosen.culling_edge_m, seed=seed, progress=progress)
+                            culling_edge_m=chosen.culling_edge_m, seed=seed, progress=progress,
+                            segmenter_config=segmenter_config)
     for note in inputs.notes:
         print(f"[openmulti] note: {note}")
     source = DataSource(inputs, encoder, image_encoder)
@@ -163,7 +167,8 @@ def run_data(data: str | Path, agents: int, policy: str, preset: str, seed: int,
                             "depth_scale": depth_scale, "gt_mesh": gt_mesh, "clip_checkpoint": clip_checkpoint,
                             "comm_budget_mb": comm_budget_mb, "consistency": consistency,
                             "cross_rendering": cross_rendering, "float16": float16, "changed_only": changed_only,
-                            **({"missing_edges": missing_edges} if consistency in ("dinno", "dsgd") else {})})
+                            **({"missing_edges": missing_edges} if consistency in ("dinno", "dsgd") else {}),
+                            **({"segmenter": segmenter} if segmenter != "fixed" else {})})
     team = run_team_config(chosen, alignment, consistency, cross_rendering, float16, changed_only,
                            mapping=for_recordings(chosen.mapping), missing_edges=missing_edges,
                            holdout_every=holdout_every)
