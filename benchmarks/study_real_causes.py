@@ -14,7 +14,7 @@ Variants (``--variants`` picks some; the default runs all):
 | `fixed_keyframes_all` | `fixed`, every frame a keyframe (5x keyframes and iterations) | keyframe selection + length |
 | `fixed_free_x5` | `fixed`, 5 stratified samples per ray instead of 1 | free space inside a box no sample supervises |
 | `fixed_other_half` | `fixed`, half of each instance's rays on other surfaces in its 2D box (default 20 %) | free space in the box |
-| `base` | today's defaults (`TeamConfig.min_keyframes`, `min_local_steps` from the preset; a recording also gets carving since it became `--data`'s default: the `base` rows of docs/real_data_study were made before) | |
+| `base` | today's defaults (`TeamConfig.min_keyframes`, `min_local_steps` from the preset; a recording also gets `mapping.agent_config.for_recordings`: carving, then also crossing free-space rays on half the rays; the `base` rows of docs/real_data_study were made before each) | |
 | `other_half` | `base`, half of the rays on other surfaces | free space in the box |
 | `crossing` | `base`, free-space rays from every keyframe ray that crosses the 3D box | free space in the box |
 | `crossing_half` | `crossing`, half of the rays free-space ones | free space in the box |
@@ -29,6 +29,9 @@ Variants (``--variants`` picks some; the default runs all):
 | `kinect_holes` | (``--scene``) 12 % of the depth pixels dropped at random | depth holes |
 | `kinect` | (``--scene``) both | |
 | `kinect_crossing_half` | `kinect` with `crossing_half`'s mapper | |
+
+On recordings a variant's mapper goes through ``for_recordings`` after its change, which fills in every
+setting the variant left at ``MappingConfig``'s default (so today ``crossing`` and ``crossing_half`` equal ``base``).
 
 ``--scene`` runs the variants on simulated scenes instead (the sensor variants only run there: the
 controlled set). Each row also holds ``team_coverage_pct``: the share of the ground truth's (or TSDF

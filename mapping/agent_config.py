@@ -80,16 +80,28 @@ class MappingConfig:
 
 RECORDING_FREE_SPACE_WEIGHT = 10.0
 """``DataLossWeights.free_space`` on real recordings (``for_recordings``), as heavy as eq. 8's occupancy term."""
+RECORDING_OWN_RAY_FRACTION = 0.5
+"""``MappingConfig.own_ray_fraction`` on real recordings: half of an instance's rays are free-space ones."""
+RECORDING_FREE_SPACE_RAYS = "crossing"
+"""``MappingConfig.free_space_rays`` on real recordings: from any keyframe ray that crosses the instance's box."""
 
 
 def for_recordings(config: MappingConfig) -> MappingConfig:
-    """The mapper settings for a real RGB-D recording: ``config`` with empty-space carving on (a config that
-    already sets a carving weight keeps it).
+    """The mapper settings for a real RGB-D recording: ``config`` with empty-space carving on, and half of
+    each instance's rays free-space ones taken from every keyframe ray that crosses its box. A setting
+    ``config`` already moved from ``MappingConfig``'s default is kept.
 
-    Measured (``benchmarks/study_real_causes.py``, 7-Scenes and TUM, 2 agents, ``fast``, seeds 0 and 1): the
-    share of depth pixels off by > 5 cm fell from 30-56 % to 20-28 %, and no seed collapsed into a
-    box-filling blob as without it. The simulator's runs keep vMAP's loss: their recorded tables were made
-    with it (see docs/real_data.md for its effect there)."""
-    if config.loss_weights.free_space:
-        return config
-    return replace(config, loss_weights=replace(config.loss_weights, free_space=RECORDING_FREE_SPACE_WEIGHT))
+    Why (``benchmarks/study_real_causes.py``, 7-Scenes and TUM, 2 agents, ``fast``, seeds 0 and 1): carving
+    took the share of depth pixels off by > 5 cm from 30-56 % to 20-28 % and no seed collapsed into a
+    box-filling blob; what stayed off was mostly surface an instance invented inside its box in front of
+    another instance's surface, which only that other instance's rays saw. Free-space rays from every ray
+    crossing the box, half of the rays, took it to 15-16 % (7-Scenes) and 20-22 % (TUM). The simulator's runs
+    keep vMAP's loss and rays: their recorded tables were made with them (docs/real_data.md)."""
+    default = MappingConfig()
+    if not config.loss_weights.free_space:
+        config = replace(config, loss_weights=replace(config.loss_weights, free_space=RECORDING_FREE_SPACE_WEIGHT))
+    if config.own_ray_fraction == default.own_ray_fraction:
+        config = replace(config, own_ray_fraction=RECORDING_OWN_RAY_FRACTION)
+    if config.free_space_rays == default.free_space_rays:
+        config = replace(config, free_space_rays=RECORDING_FREE_SPACE_RAYS)
+    return config

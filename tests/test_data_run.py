@@ -13,6 +13,8 @@ import numpy as np
 import pytest
 
 import mapping.data.source as source
+from mapping.agent_config import MappingConfig, for_recordings
+from mapping.losses import DataLossWeights
 from mapping.data import DatasetError, DatasetWarning
 from mapping.perception.geometric_segmenter import RANGE_AWARE, segmenter_settings
 from openmulti_env.runs.cli import main
@@ -50,8 +52,9 @@ def test_replica_team_always_writes_the_run_contract_and_answers_queries(tmp_pat
         assert m["depth_median_cm"] is not None and 0 <= m["depth_off_pct"] <= 100  # against the data's own depth
     assert metrics["ground_truth"] == "given" and metrics["masks"] == "dataset"
     assert metrics["config"]["frames_per_agent"] == {"agent_0": 6, "agent_1": 6}
-    team = metrics["config"]["team"]  # a recording gets empty-space carving; 6 frames are all keyframes
-    assert team["mapping"]["loss_weights"]["free_space"] == 10.0 and team["min_keyframes"] == 6
+    team = metrics["config"]["team"]  # a recording gets empty-space carving and crossing free-space rays;
+    assert team["mapping"]["loss_weights"]["free_space"] == 10.0 and team["min_keyframes"] == 6  # all keyframes
+    assert team["mapping"]["free_space_rays"] == "crossing" and team["mapping"]["own_ray_fraction"] == 0.5
     # the team ran its rounds (6 frames per agent, 4 per round on tiny) and talked in every one
     assert metrics["config"]["policy"] == "always" and metrics["config"]["team"]["alignment"] is True
     assert metrics["rounds"] == len(metrics["bytes_per_round"]) == 2 and metrics["fleet_s"] > 0
@@ -246,3 +249,10 @@ def test_option_strings_and_meshes_are_checked(tmp_path):
 def test_two_frame_sequences_are_checked_without_reading_past_their_end():
     for frames in ("0:6:3", "0:2:1"):
         check_sequence(load_agents(REPLICA, "auto", 1, frames=frames))
+
+
+def test_recording_settings_fill_only_what_a_config_left_at_its_default():
+    chosen = for_recordings(MappingConfig())
+    assert (chosen.loss_weights.free_space, chosen.own_ray_fraction, chosen.free_space_rays) == (10.0, 0.5, "crossing")
+    kept = for_recordings(MappingConfig(own_ray_fraction=0.7, loss_weights=DataLossWeights(free_space=2.0)))
+    assert (kept.loss_weights.free_space, kept.own_ray_fraction, kept.free_space_rays) == (2.0, 0.7, "crossing")
