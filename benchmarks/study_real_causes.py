@@ -24,6 +24,7 @@ Variants (``--variants`` picks some; the default runs all):
 | `segmenter_range_aware` | `base` with the segmenter's `RANGE_AWARE` thresholds (planes and clusters widen with depth noise) | segments at range |
 | `segmenter_range_aware_core6` | `segmenter_range_aware` with DBSCAN's core rule (6 of 8 grid neighbours) | segments at range |
 | `segmenter_range_aware_3m5` | `segmenter_range_aware`, no masks beyond 3.5 m | segments at range |
+| `carve_crossing_half` | `carve` and `crossing_half` (on a recording: `base`; for ``--scene``) | free space in the box |
 | `crossing_half_range_aware` | `crossing_half` with `segmenter_range_aware`'s segmenter | both |
 | `kinect_noise` | (``--scene``) the simulator's depth with Kinect v1's noise, 1.5 mm x depth^2 | depth noise at range |
 | `kinect_holes` | (``--scene``) 12 % of the depth pixels dropped at random | depth holes |
@@ -109,6 +110,8 @@ VARIANTS: dict[str, Variant] = {
     "segmenter_range_aware": Variant(segmenter=RANGE_AWARE),
     "segmenter_range_aware_core6": Variant(segmenter=replace(RANGE_AWARE, cluster_core_neighbours=6)),
     "segmenter_range_aware_3m5": Variant(segmenter=replace(RANGE_AWARE, max_depth_m=3.5)),
+    "carve_crossing_half": Variant(lambda m: replace(m, free_space_rays="crossing", own_ray_fraction=0.5,
+                                                     loss_weights=replace(m.loss_weights, free_space=10.0))),
     "crossing_half_range_aware": Variant(lambda m: replace(m, free_space_rays="crossing", own_ray_fraction=0.5),
                                          segmenter=RANGE_AWARE),
     "kinect_noise": Variant(sensor=KINECT_NOISE),

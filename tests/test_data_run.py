@@ -13,6 +13,8 @@ import numpy as np
 import pytest
 
 import mapping.data.source as source
+from scipy.spatial.transform import Rotation
+from mapping.data.checks import CONFLICT_NOTE_SHARE, pose_conflict_note
 from mapping.agent_config import MappingConfig, for_recordings
 from mapping.losses import DataLossWeights
 from mapping.data import DatasetError, DatasetWarning
@@ -256,3 +258,21 @@ def test_recording_settings_fill_only_what_a_config_left_at_its_default():
     assert (chosen.loss_weights.free_space, chosen.own_ray_fraction, chosen.free_space_rays) == (10.0, 0.5, "crossing")
     kept = for_recordings(MappingConfig(own_ray_fraction=0.7, loss_weights=DataLossWeights(free_space=2.0)))
     assert (kept.loss_weights.free_space, kept.own_ray_fraction, kept.free_space_rays) == (2.0, 0.7, "crossing")
+
+
+def test_poses_off_by_centimetres_get_a_note_saying_what_no_map_can_fix(tmp_path):
+    checks = check_sequence(load_agents(REPLICA, "auto", 2))
+    assert all(c.free_space_conflict < CONFLICT_NOTE_SHARE for c in checks)
+    assert pose_conflict_note(checks, "replica_tiny") is None  # exact poses and depth
+    data = _copy(tmp_path)
+    poses = np.loadtxt(data / "traj_w_c.txt").reshape(-1, 4, 4)
+    turn = np.eye(4)
+    turn[:3, :3] = Rotation.from_euler("x", 3, degrees=True).as_matrix()  # 3 degrees about the camera's x
+    poses[1::2] = poses[1::2] @ turn  # every other frame: still camera-to-world, a few centimetres off at 1-2 m
+    np.savetxt(data / "traj_w_c.txt", poses.reshape(-1, 16))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DatasetWarning)
+        checks = check_sequence(load_agents(data, "auto", 2))
+    assert all(c.free_space_conflict > CONFLICT_NOTE_SHARE for c in checks if c.pairs)
+    assert re.search(r"tiny: under the given poses, [0-9.]+ % of a frame's points land more than 5 cm in front",
+                     pose_conflict_note(checks, str(data)))

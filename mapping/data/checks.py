@@ -29,6 +29,13 @@ MIN_AGREEMENT = 0.3
 """Share of the overlapping reprojected points that must agree for neighbouring frames to look
 consistent (occlusion and sensor noise keep correct poses well above it; wrong poses land points at
 unrelated depths, far below it)."""
+FREE_SPACE_CONFLICT_M = 0.05
+"""A point carried into the neighbour's view more than this in front of the neighbour's depth lies where the
+neighbour saw free space: one of the two frames' poses (or its depth's timing) is off, and no single map
+can match both frames there (the depth check's 5 cm)."""
+CONFLICT_NOTE_SHARE = 0.03
+"""Above this median share of conflicting points the run's notes say so (7-Scenes: 0.5 %; a TUM sequence
+with motion-capture poses: about 11 %)."""
 MIN_OVERLAP = 0.1
 """A pair counts only when this share of the first frame's points lands inside the second frame."""
 
@@ -40,6 +47,9 @@ class PoseCheck:
     as_given: float
     inverted: float
     pairs: int
+    free_space_conflict: float = float("nan")
+    """Median share of the overlapping points that land more than ``FREE_SPACE_CONFLICT_M`` in front of the
+    neighbour's depth, poses as given (``FREE_SPACE_CONFLICT_M``)."""
 
 
 def median_depth_m(frames: Sequence[Frame]) -> float:
@@ -64,8 +74,10 @@ def check_depth_unit(frames: Sequence[Frame], where: str, depth_scale: float) ->
     return median
 
 
-def _agreement(src: Frame, dst: Frame, src_pose: np.ndarray, dst_pose: np.ndarray, stride: int) -> float | None:
-    """Share of ``src``'s points, carried into ``dst`` by the poses, whose depth agrees with ``dst``'s."""
+def _agreement(src: Frame, dst: Frame, src_pose: np.ndarray, dst_pose: np.ndarray,
+               stride: int) -> tuple[float, float] | None:
+    """Shares of ``src``'s points, carried into ``dst`` by the poses, whose depth agrees with ``dst``'s and
+    that land more than ``FREE_SPACE_CONFLICT_M`` in front of it (of those ``dst`` has depth for)."""
     points = backproject_depth(src.depth, src.intrinsics, src_pose, stride=stride)
     if len(points) == 0:
         return None
@@ -81,23 +93,26 @@ def _agreement(src: Frame, dst: Frame, src_pose: np.ndarray, dst_pose: np.ndarra
     zz = z[front][inside]
     ok = seen > 0
     if ok.sum() < MIN_OVERLAP * len(points):
-        return 0.0  # the neighbour does not look at the same place
+        return 0.0, float("nan")  # the neighbour does not look at the same place
     agree = np.abs(seen[ok] - zz[ok]) < AGREEMENT_TOLERANCE * zz[ok]
-    return float(agree.mean())
+    return float(agree.mean()), float((zz[ok] < seen[ok] - FREE_SPACE_CONFLICT_M).mean())
 
 
 def pose_agreement(pairs: Sequence[tuple[Frame, Frame]], stride: int = 8) -> PoseCheck:
     """Median agreement of pairs of neighbouring frames with the poses as given and inverted."""
-    given, inverted = [], []
+    given, inverted, conflict = [], [], []
     for a, b in pairs:
         g = _agreement(a, b, a.pose, b.pose, stride)
         i = _agreement(a, b, np.linalg.inv(a.pose), np.linalg.inv(b.pose), stride)
         if g is not None and i is not None:
-            given.append(g)
-            inverted.append(i)
+            given.append(g[0])
+            inverted.append(i[0])
+            conflict.append(g[1])
     if not given:
         return PoseCheck(float("nan"), float("nan"), 0)
-    return PoseCheck(float(np.median(given)), float(np.median(inverted)), len(given))
+    conflict = [c for c in conflict if np.isfinite(c)]
+    return PoseCheck(float(np.median(given)), float(np.median(inverted)), len(given),
+                     float(np.median(conflict)) if conflict else float("nan"))
 
 
 def check_poses(pairs: Sequence[tuple[Frame, Frame]], where: str) -> PoseCheck:
@@ -112,3 +127,15 @@ def check_poses(pairs: Sequence[tuple[Frame, Frame]], where: str) -> PoseCheck:
                       f"{100 * result.as_given:.0f} % of reprojected depth agrees, over {result.pairs} pairs)"
                       f"{hint}", DatasetWarning, stacklevel=2)
     return result
+
+
+def pose_conflict_note(checks: list[PoseCheck], where: str) -> str | None:
+    """A note when neighbouring frames contradict each other's free space on more than
+    ``CONFLICT_NOTE_SHARE`` of their points (median over the pairs checked), else None."""
+    shares = [c.free_space_conflict for c in checks if c.pairs and np.isfinite(c.free_space_conflict)]
+    if not shares or np.median(shares) <= CONFLICT_NOTE_SHARE:
+        return None
+    return (f"{where}: under the given poses, {100 * np.median(shares):.1f} % of a frame's points land more than "
+            f"{100 * FREE_SPACE_CONFLICT_M:.0f} cm in front of what the next frame measured there (median over "
+            f"{sum(c.pairs for c in checks)} pairs): the poses (or the depth's timing) are off by centimetres there, "
+            "no map can be right in both frames, and the depth check's off share stays above about that figure")

@@ -22,7 +22,7 @@ from scipy.spatial import cKDTree
 from tqdm import tqdm
 
 from mapping.data import DatasetError, Frame, RGBDDataset, load_dataset, split_contiguous
-from mapping.data.checks import check_depth_unit, check_poses
+from mapping.data.checks import PoseCheck, check_depth_unit, check_poses, pose_conflict_note
 from mapping.data.labels import dataset_categories
 from mapping.evaluate.reference import TSDFConfig, TSDFReference
 from mapping.perception import FrameSegmentation, TextEncoder
@@ -108,14 +108,19 @@ def load_agents(path: str | Path, kind: str, agents: int, frames: str | None = N
     return {f"agent_{k}": ds.subset(r) for k, r in enumerate(split_contiguous(len(ds), agents))}
 
 
-def check_sequence(agents: dict[str, RGBDDataset]) -> None:
-    """Warn (naming the files) about an implausible depth unit or poses that are not camera-to-world."""
+def check_sequence(agents: dict[str, RGBDDataset]) -> list[PoseCheck]:
+    """Warn (naming the files) about an implausible depth unit or poses that are not camera-to-world;
+    returns each agent's pose check (how far neighbouring frames agree)."""
     first = next(iter(agents.values()))
     sample = [first[i] for i in sorted({0, len(first) // 2, len(first) - 1})]
     check_depth_unit(sample, f"{first.files[0].depth.parent}", first.depth_scale)
+    checks = []
     for name, seq in agents.items():
         starts = sorted({i for i in (0, len(seq) // 2, len(seq) - 2) if 0 <= i < len(seq) - 1})  # pairs (i, i + 1)
-        check_poses([(seq[i], seq[i + 1]) for i in starts], f"{seq.root / POSE_FILES[seq.kind]} ({name}'s frames)")
+        checks.append(check_poses([(seq[i], seq[i + 1]) for i in starts],
+                                  f"{seq.root / POSE_FILES[seq.kind]} ({name}'s frames)"))
+    return checks
+
 
 
 def prepare_inputs(path: str | Path, kind: str = "auto", agents: int = 1, frames: str | None = None,
@@ -133,7 +138,7 @@ def prepare_inputs(path: str | Path, kind: str = "auto", agents: int = 1, frames
     encoder = text_encoder or shared_text_encoder()
     seqs = load_agents(path, kind, agents, frames, intrinsics, depth_scale)
     first = next(iter(seqs.values()))
-    check_sequence(seqs)
+    pose_checks = check_sequence(seqs)
     has_masks = first.files[0].instance is not None
     categories, label_file = dataset_categories(first.root, first.kind) if has_masks else ({}, None)
     notes = []
@@ -149,6 +154,9 @@ def prepare_inputs(path: str | Path, kind: str = "auto", agents: int = 1, frames
         segmenter = GeometricSegmenter(segmenter_config)
         notes.append("no instance masks in the data: masks from the geometric segmenter (planes + Euclidean "
                      "clusters); semantics are geometric only, F-mIoU/F-mAcc are not scored")
+    conflict = pose_conflict_note(pose_checks, str(first.root))
+    if conflict:
+        notes.append(conflict)
     reference = TSDFReference(tsdf) if gt_mesh is None else None
     labelled = _LabelledPoints(categories) if categories else None
     segmentations, seg_time, n_frames = {}, 0.0, 0
