@@ -13,7 +13,9 @@ box, where only the other instance's rays looked.
 (in front of a frame's valid depth by more than max(5 cm, 3 x Kinect noise)), trained frames against
 held-out ones (every 10th): the bound of meshing only where no frame saw free space, without retraining;
 and the share of the frames' own sensed points that another frame saw as free space (the data's own
-disagreement, which no single map can undo).
+disagreement, which no single map can undo). ``--icp`` aligns each pair of consecutive frames' clouds
+(open3d point-to-plane ICP from the given relative pose) and prints how far it moves them: what the poses
+are off by, relative to the depth.
 
 Run: ``.venv/bin/python benchmarks/diagnose_depth_off.py --data DIR --run RUN_DIR --agents 2``
 """
@@ -97,12 +99,38 @@ def contradicted_share(frames: list, stride: int = 8) -> float:
     return 100.0 * contradicted / max(total, 1)
 
 
+def icp_corrections(frames: list, max_depth_m: float = 3.5) -> np.ndarray:
+    """(n - 1, 2): translation [cm] and rotation [deg] by which point-to-plane ICP moves each consecutive
+    pair's given relative pose (clouds of every 2nd pixel within ``max_depth_m``, 1 cm voxels)."""
+    import open3d as o3d  # noqa: PLC0415
+
+    def cloud(frame) -> o3d.geometry.PointCloud:
+        k, depth = frame.intrinsics, np.asarray(frame.depth, np.float64)[::2, ::2]
+        v, u = np.mgrid[0:k.height:2, 0:k.width:2]
+        ok = (depth > 0) & (depth < max_depth_m)
+        cam = np.stack([(u - k.cx) / k.fx, (v - k.cy) / k.fy, np.ones(u.shape)], -1)[ok] * depth[ok, None]
+        pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(cam)).voxel_down_sample(0.01)
+        pc.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=0.05, max_nn=30))
+        return pc
+
+    clouds, out = [cloud(f) for f in frames], []
+    for i in range(1, len(frames)):
+        given = np.linalg.inv(np.asarray(frames[i - 1].pose)) @ np.asarray(frames[i].pose)
+        fit = o3d.pipelines.registration.registration_icp(
+            clouds[i], clouds[i - 1], 0.05, given, o3d.pipelines.registration.TransformationEstimationPointToPlane())
+        delta = np.linalg.inv(given) @ fit.transformation
+        angle = np.degrees(np.arccos(np.clip((np.trace(delta[:3, :3]) - 1) / 2, -1, 1)))
+        out.append((100 * np.linalg.norm(delta[:3, 3]), angle))
+    return np.array(out).reshape(-1, 2)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--data", required=True, help="the data set folder the run mapped")
     parser.add_argument("--run", required=True, help="the run's folder (meshes/agent_K.ply)")
     parser.add_argument("--agents", type=int, required=True, help="the run's --agents")
     parser.add_argument("--stride", type=int, default=4)
+    parser.add_argument("--icp", action="store_true", help="also print how far ICP moves consecutive frames")
     parser.add_argument("--cull-free-space", action="store_true", help="also score the maps without the faces "
                         "their own frames saw as free space")
     args = parser.parse_args()
@@ -131,6 +159,10 @@ def main() -> None:
         if n_front:
             print(f"  in front: {100 * other / n_front:.1f} % hit another instance than the sensed point's; "
                   f"the instances hit most (id: pixels): {dict(hit_ids.most_common(4))}")
+        if args.icp and len(seq) > 1:
+            c = icp_corrections(list(seq))
+            print(f"  ICP moves consecutive frames by a median {np.median(c[:, 0]):.1f} cm and {np.median(c[:, 1]):.2f} "
+                  f"deg (90th percentile {np.percentile(c[:, 0], 90):.1f} cm, {np.percentile(c[:, 1], 90):.2f} deg)")
         if args.cull_free_space:
             print(f"  off: {culled_scores(mesh, list(seq))}; sensed points another frame saw as free space: "
                   f"{contradicted_share(list(seq)):.1f} %")
