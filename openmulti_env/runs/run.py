@@ -88,7 +88,6 @@ def run(scene: str, agents: int, policy: str, preset: str, seed: int, out: Path,
     """
     if global_form not in GLOBAL_FORMS:
         raise ValueError(f"unknown global_form {global_form!r}; choose one of {GLOBAL_FORMS}")
-    segmenter_config = segmenter_settings(segmenter)
     begun = begin_run(preset, policy, agents, alignment, consistency, comm_budget_mb, threads, workers, seed,
                       clip_checkpoint)
     chosen, scripted, workers, image_encoder = begun.preset, begun.policy, begun.workers, begun.image_encoder
