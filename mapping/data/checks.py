@@ -132,10 +132,11 @@ def check_poses(pairs: Sequence[tuple[Frame, Frame]], where: str) -> PoseCheck:
 def pose_conflict_note(checks: list[PoseCheck], where: str) -> str | None:
     """A note when neighbouring frames contradict each other's free space on more than
     ``CONFLICT_NOTE_SHARE`` of their points (median over the pairs checked), else None."""
-    shares = [c.free_space_conflict for c in checks if c.pairs and np.isfinite(c.free_space_conflict)]
+    shares = [c.free_space_conflict for c in checks  # inverted or wrong poses get check_poses' warning instead
+              if c.pairs and c.as_given >= MIN_AGREEMENT and np.isfinite(c.free_space_conflict)]
     if not shares or np.median(shares) <= CONFLICT_NOTE_SHARE:
         return None
     return (f"{where}: under the given poses, {100 * np.median(shares):.1f} % of a frame's points land more than "
             f"{100 * FREE_SPACE_CONFLICT_M:.0f} cm in front of what the next frame measured there (median over "
-            f"{sum(c.pairs for c in checks)} pairs): the poses (or the depth's timing) are off by centimetres there, "
+            f"{len(shares)} agents' pairs): the poses (or the depth's timing) are off by centimetres there, "
             "no map can be right in both frames, and the depth check's off share stays above about that figure")
