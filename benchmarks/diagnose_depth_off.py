@@ -27,7 +27,10 @@ import collections
 from pathlib import Path
 
 import numpy as np
+import trimesh
 from scipy.spatial import cKDTree
+
+from mapping.data.frame import Frame
 
 from mapping.data.source import load_agents
 from mapping.evaluate.depth_check import OFF_TOLERANCE_M, depth_check
@@ -37,7 +40,7 @@ from mapping.evaluate.raycast import MeshRaycaster
 CLASSES = ("right", "in front", "behind", "none")
 
 
-def pixel_classes(raycaster: MeshRaycaster, frame, stride: int) -> tuple[np.ndarray, np.ndarray, np.ndarray,
+def pixel_classes(raycaster: MeshRaycaster, frame: Frame, stride: int) -> tuple[np.ndarray, np.ndarray, np.ndarray,
                                                                          np.ndarray]:
     """Per strided pixel: class index (``CLASSES``, -1 = no sensor depth), sensor depth, the face hit, and
     the sensed point in world coordinates (for the in-front pixels' owners)."""
@@ -54,7 +57,7 @@ def pixel_classes(raycaster: MeshRaycaster, frame, stride: int) -> tuple[np.ndar
     return classes, sensor, face, points
 
 
-def seen_as_free_space(points: np.ndarray, frames, margin_m: float = OFF_TOLERANCE_M,
+def seen_as_free_space(points: np.ndarray, frames: list[Frame], margin_m: float = OFF_TOLERANCE_M,
                        noise_m_per_m2: float = 0.0015) -> np.ndarray:
     """(n,) bool: some frame saw the point in front of its valid depth by more than max(margin, 3 x noise)."""
     free = np.zeros(len(points), bool)
@@ -73,7 +76,7 @@ def seen_as_free_space(points: np.ndarray, frames, margin_m: float = OFF_TOLERAN
     return free
 
 
-def culled_scores(mesh, frames: list, holdout_every: int = 10) -> str:
+def culled_scores(mesh: trimesh.Trimesh, frames: list[Frame], holdout_every: int = 10) -> str:
     """The depth check (off %) of ``mesh`` as it is and with the faces the trained frames saw as free space removed."""
     trained = [f for i, f in enumerate(frames) if i % holdout_every != holdout_every - 1]
     held = [f for i, f in enumerate(frames) if i % holdout_every == holdout_every - 1]
