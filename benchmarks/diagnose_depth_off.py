@@ -82,8 +82,11 @@ def culled_scores(mesh: trimesh.Trimesh, frames: list[Frame], holdout_every: int
     held = [f for i, f in enumerate(frames) if i % holdout_every == holdout_every - 1]
     keep = np.flatnonzero(~seen_as_free_space(np.asarray(mesh.triangles_center), trained))
     culled = mesh.submesh([keep], append=True, repair=False)
-    return "; ".join(f"{what}: trained {depth_check(m, trained).off_pct:.1f} %, held out {depth_check(m, held).off_pct:.1f} %"
-                     for what, m in (("as is", mesh), ("free-space faces removed", culled)))
+
+    def scores(m: trimesh.Trimesh) -> str:
+        held_out = f"{depth_check(m, held).off_pct:.1f} %" if held else f"none (fewer than {holdout_every} frames)"
+        return f"trained {depth_check(m, trained).off_pct:.1f} %, held out {held_out}"
+    return "; ".join(f"{what}: {scores(m)}" for what, m in (("as is", mesh), ("free-space faces removed", culled)))
 
 
 def contradicted_share(frames: list, stride: int = 8) -> float:
@@ -152,11 +155,15 @@ def main() -> None:
             hit_ids.update(hit.tolist())
             other += int((hit != owner).sum())
         total = by_depth.sum()
+        if not total:
+            print(f"{name}: {len(seq)} frames, no pixel with valid sensor depth: nothing to split")
+            continue
         shares = ", ".join(f"{c} {100 * by_depth[:, i].sum() / total:.1f}" for i, c in enumerate(CLASSES))
         print(f"{name}: {len(seq)} frames, % of valid pixels: {shares}")
         for metres, row in enumerate(by_depth):
             if row.sum():
-                print(f"  sensor depth {metres}-{metres + 1} m ({100 * row.sum() / total:.1f} % of pixels): "
+                band = f"{metres}-{metres + 1} m" if metres < len(by_depth) - 1 else f">= {metres} m"
+                print(f"  sensor depth {band} ({100 * row.sum() / total:.1f} % of pixels): "
                       + ", ".join(f"{c} {100 * x / row.sum():.1f}" for c, x in zip(CLASSES, row)))
         n_front = sum(hit_ids.values())
         if n_front:

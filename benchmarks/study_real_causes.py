@@ -15,10 +15,10 @@ Variants (``--variants`` picks some; the default runs all):
 | `fixed_free_x5` | `fixed`, 5 stratified samples per ray instead of 1 | free space inside a box no sample supervises |
 | `fixed_other_half` | `fixed`, half of each instance's rays on other surfaces in its 2D box (default 20 %) | free space in the box |
 | `base` | today's defaults (`TeamConfig.min_keyframes`, `min_local_steps` from the preset; a recording also gets `mapping.agent_config.for_recordings`: carving, then also crossing free-space rays on half the rays; the `base` rows of docs/real_data_study were made before each) | |
-| `other_half` | `base`, half of the rays on other surfaces | free space in the box |
+| `other_half` | vMAP's mapper, half of the rays on other surfaces | free space in the box |
 | `crossing` | `base`, free-space rays from every keyframe ray that crosses the 3D box | free space in the box |
 | `crossing_half` | `crossing`, half of the rays free-space ones | free space in the box |
-| `carve` | `base`, every sample in front of an observed surface asked to be empty (weight 10) | free space in the box |
+| `carve` | vMAP's mapper, every sample in front of an observed surface asked to be empty (weight 10) | free space in the box |
 | `carve_half` | `carve` and `other_half` | |
 | `planes_4cm` | `base`, the geometric segmenter's plane inlier distance 4 cm (was 2 cm) | segments at range |
 | `segmenter_range_aware` | `base` with the segmenter's `RANGE_AWARE` thresholds (planes and clusters widen with depth noise) | segments at range |
@@ -32,7 +32,9 @@ Variants (``--variants`` picks some; the default runs all):
 | `kinect_crossing_half` | `kinect` with `crossing_half`'s mapper | |
 
 On recordings a variant's mapper goes through ``for_recordings`` after its change, which fills in every
-setting the variant left at ``MappingConfig``'s default (so today ``crossing`` and ``crossing_half`` equal ``base``).
+setting the variant left at ``MappingConfig``'s default (so today ``crossing`` and ``crossing_half`` equal ``base``),
+except for the `fixed*`, `other_half`, `carve` and `carve_half` variants: they change vMAP's mapper alone
+(``Variant.recording_mapper``), as when their rows were made.
 
 ``--scene`` runs the variants on simulated scenes instead (the sensor variants only run there: the
 controlled set). Each row also holds ``team_coverage_pct``: the share of the ground truth's (or TSDF
@@ -91,21 +93,27 @@ class Variant:
     """``SensorConfig`` fields (simulated scenes only)."""
     segmenter: GeometricSegmenterConfig | None = None
     """The geometric segmenter's settings (recordings without masks only; None: its defaults)."""
+    recording_mapper: bool = True
+    """On a recording, pass the changed mapper through ``for_recordings``; False: the change on vMAP's mapper
+    alone (the variants made before ``for_recordings`` existed, so that their rows keep their meaning)."""
 
 
 VARIANTS: dict[str, Variant] = {
-    "fixed": Variant(team=FIXED),
-    "fixed_iters_x5": Variant(lambda m: replace(m, iterations_per_keyframe=5 * m.iterations_per_keyframe), FIXED),
-    "fixed_keyframes_all": Variant(lambda m: replace(m, keyframe_every=1), FIXED),
-    "fixed_free_x5": Variant(lambda m: _sampler(m, n_stratified=5), FIXED),
-    "fixed_other_half": Variant(lambda m: replace(m, own_ray_fraction=0.5), FIXED),
+    "fixed": Variant(team=FIXED, recording_mapper=False),
+    "fixed_iters_x5": Variant(lambda m: replace(m, iterations_per_keyframe=5 * m.iterations_per_keyframe), FIXED,
+                              recording_mapper=False),
+    "fixed_keyframes_all": Variant(lambda m: replace(m, keyframe_every=1), FIXED, recording_mapper=False),
+    "fixed_free_x5": Variant(lambda m: _sampler(m, n_stratified=5), FIXED, recording_mapper=False),
+    "fixed_other_half": Variant(lambda m: replace(m, own_ray_fraction=0.5), FIXED, recording_mapper=False),
     "base": Variant(),
-    "other_half": Variant(lambda m: replace(m, own_ray_fraction=0.5)),
+    "other_half": Variant(lambda m: replace(m, own_ray_fraction=0.5), recording_mapper=False),
     "crossing": Variant(lambda m: replace(m, free_space_rays="crossing")),
     "crossing_half": Variant(lambda m: replace(m, free_space_rays="crossing", own_ray_fraction=0.5)),
-    "carve": Variant(lambda m: replace(m, loss_weights=replace(m.loss_weights, free_space=10.0))),
+    "carve": Variant(lambda m: replace(m, loss_weights=replace(m.loss_weights, free_space=10.0)),
+                     recording_mapper=False),
     "carve_half": Variant(lambda m: replace(m, own_ray_fraction=0.5,
-                                            loss_weights=replace(m.loss_weights, free_space=10.0))),
+                                            loss_weights=replace(m.loss_weights, free_space=10.0)),
+                          recording_mapper=False),
     "planes_4cm": Variant(segmenter=GeometricSegmenterConfig(plane_distance_m=0.04)),
     "segmenter_range_aware": Variant(segmenter=RANGE_AWARE),
     "segmenter_range_aware_core6": Variant(segmenter=replace(RANGE_AWARE, cluster_core_neighbours=6)),
@@ -204,7 +212,8 @@ def main() -> None:
             options = dict(device="cpu", threads=args.threads, holdout_every=args.holdout_every)
             preset = _register(args.preset, variant)
             with _segmenter(VARIANTS[variant].segmenter):
-                metrics = (run_data(data, args.agents, "always", preset, args.seed, run_dir, **options) if data
+                metrics = (run_data(data, args.agents, "always", preset, args.seed, run_dir,
+                                    recording_mapper=VARIANTS[variant].recording_mapper, **options) if data
                            else run(scene, args.agents, "always", preset, args.seed, run_dir, **options))
             rows[key] = {k: _mean([a.get(k) for a in metrics["agents"].values()]) for k in KEYS}
             rows[key]["team_coverage_pct"] = team_coverage_pct(run_dir)

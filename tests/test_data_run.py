@@ -12,17 +12,18 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import mapping.data.source as source
 from scipy.spatial.transform import Rotation
-from mapping.data.checks import CONFLICT_NOTE_SHARE, pose_conflict_note
+
+import mapping.data.source as source
 from mapping.agent_config import MappingConfig, for_recordings
-from mapping.losses import DataLossWeights
 from mapping.data import DatasetError, DatasetWarning
-from mapping.perception.geometric_segmenter import RANGE_AWARE, segmenter_settings
-from openmulti_env.runs.cli import main
-from mapping.pipeline.records import forget_stale_checkpoints
-from openmulti_env.runs.run import run_data
+from mapping.data.checks import CONFLICT_NOTE_SHARE, pose_conflict_note
 from mapping.data.source import check_sequence, load_agents, load_gt_mesh, parse_frames, parse_intrinsics
+from mapping.losses import DataLossWeights
+from mapping.perception.geometric_segmenter import RANGE_AWARE, segmenter_settings
+from mapping.pipeline.records import forget_stale_checkpoints
+from openmulti_env.runs.cli import main
+from openmulti_env.runs.run import run_data
 
 FIXTURES = Path(__file__).parent / "fixtures"
 REPLICA, SCANNET, NICE_SLAM = FIXTURES / "replica_tiny", FIXTURES / "scene0000_00", FIXTURES / "nice_slam_tiny"
@@ -250,7 +251,8 @@ def test_option_strings_and_meshes_are_checked(tmp_path):
 
 def test_two_frame_sequences_are_checked_without_reading_past_their_end():
     for frames in ("0:6:3", "0:2:1"):
-        check_sequence(load_agents(REPLICA, "auto", 1, frames=frames))
+        checks = check_sequence(load_agents(REPLICA, "auto", 1, frames=frames))
+        assert [c.pairs for c in checks] == [1]  # the one neighbouring pair, checked
 
 
 def test_recording_settings_fill_only_what_a_config_left_at_its_default():

@@ -49,7 +49,7 @@ class PoseCheck:
     pairs: int
     free_space_conflict: float = float("nan")
     """Median share of the overlapping points that land more than ``FREE_SPACE_CONFLICT_M`` in front of the
-    neighbour's depth, poses as given (``FREE_SPACE_CONFLICT_M``)."""
+    neighbour's depth, poses as given: a point one frame saw where the other saw free space."""
 
 
 def median_depth_m(frames: Sequence[Frame]) -> float:

@@ -138,13 +138,15 @@ def run_data(data: str | Path, agents: int, policy: str, preset: str, seed: int,
              threads: int | None = None, checkpoint_every: int = 5, progress: bool = True,
              max_rounds: int | None = None, workers: int | None = None, missing_edges: str = "skip",
              processes: str | None = None, holdout_every: int | None = None, learner: str = "per_agent",
-             evaluate: bool = True, segmenter: str = "fixed") -> dict:
+             evaluate: bool = True, segmenter: str = "fixed", recording_mapper: bool = True) -> dict:
     """A team run on a real RGB-D data set split into ``agents`` contiguous sequences; returns the metrics
     written to ``out/metrics.json``.
 
     Args:
         data: the data set folder (Replica vMAP or NICE-SLAM layout, or a ScanNet export).
         kind, gt_mesh, frames, intrinsics, depth_scale, segmenter: see ``openmulti run --help``.
+        recording_mapper: the preset's mapper through ``for_recordings`` (carving, crossing free-space rays);
+            False keeps the preset's mapper as it is (vMAP's loss and rays), for studies of one change.
         the rest: as ``run``.
     """
     segmenter_config = segmenter_settings(segmenter)
@@ -167,10 +169,11 @@ def run_data(data: str | Path, agents: int, policy: str, preset: str, seed: int,
                             "comm_budget_mb": comm_budget_mb, "consistency": consistency,
                             "cross_rendering": cross_rendering, "float16": float16, "changed_only": changed_only,
                             **({"missing_edges": missing_edges} if consistency in ("dinno", "dsgd") else {}),
-                            **({"segmenter": segmenter} if segmenter != "fixed" else {})})
+                            **({"segmenter": segmenter} if segmenter != "fixed" else {}),
+                            **({} if recording_mapper else {"recording_mapper": False})})
     team = run_team_config(chosen, alignment, consistency, cross_rendering, float16, changed_only,
-                           mapping=for_recordings(chosen.mapping), missing_edges=missing_edges,
-                           holdout_every=holdout_every)
+                           mapping=for_recordings(chosen.mapping) if recording_mapper else chosen.mapping,
+                           missing_edges=missing_edges, holdout_every=holdout_every)
     config = RunConfig(Path(out), team, team_channel(scripted, comm_budget_mb), seed=seed, device=device,
                        workers=workers, threads=threads, checkpoint_every=checkpoint_every, max_rounds=max_rounds,
                        progress=progress, processes=processes, learner=learner, evaluate=evaluate,
