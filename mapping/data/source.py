@@ -122,7 +122,6 @@ def check_sequence(agents: dict[str, RGBDDataset]) -> list[PoseCheck]:
     return checks
 
 
-
 def prepare_inputs(path: str | Path, kind: str = "auto", agents: int = 1, frames: str | None = None,
                    intrinsics: str | None = None, depth_scale: float | None = None, gt_mesh: str | None = None,
                    text_encoder: TextEncoder | None = None, image_encoder: ImageTextEncoder | None = None,
