@@ -71,7 +71,8 @@ def _fake_run(calls):
         calls.append((scene, policy, seed, kwargs.get("global_map")))
         quiet = {"never": 0.0, "every:2": 0.5}.get(policy, 1.0)  # share of always's bytes
         return {"mean": {"acc_cm": 2.0 + seed, "comp_cm": 3.0, "comp_ratio": 80.0 - 10 * kwargs["global_map"]
-                         - 30 * (1 - quiet) - seed, "f_miou": 50.0, "f_macc": 60.0},
+                         - 30 * (1 - quiet) - seed, "comp_ratio_nice": 90.0 - 20 * (1 - quiet) - seed,
+                         "f_miou": 50.0, "f_macc": 60.0},
                 "bytes_sent_total": int(24000 * quiet),
                 "team": {"f_miou": 55.0, "f_macc": 65.0}, "config": {"agents": agents}, "rounds": 4,
                 "bytes_per_round": [4000, 4000, 8000, 8000], "fleet_s": 8.0, "compute_s": {"agent_0": 3.0},
@@ -245,7 +246,8 @@ def test_tradeoff_table_runs_each_policy_on_each_scene_and_marks_the_pareto_fron
     assert means["every:2"]["bytes_vs_always"] == pytest.approx(0.5)
     assert means["every:2"]["delta_vs_always"] == pytest.approx(-15.0)
     md = (tmp_path / "tradeoff.md").read_text()
-    assert "| every:2 | 2 | 64.5 ± 0.7 | 0.0 ± 0.0 | 50 % | -15.0 | yes |" in md
+    assert means["every:2"]["delta_nice_vs_always"] == pytest.approx(-10.0)
+    assert "| every:2 | 2 | 64.5 ± 0.7 | 0.0 ± 0.0 | 50 % | -15.0 | yes | 79.5 ± 0.7 | -10.0 | yes |" in md
     assert (tmp_path / "tradeoff.png").stat().st_size > 1000
     assert pareto_front([(1.0, 50.0), (2.0, 40.0), (3.0, 60.0)]) == [0, 2]
     with pytest.raises(ValueError, match="not in table 'tradeoff'"):

@@ -2,8 +2,11 @@
 team sent, per communication policy, with the Pareto front.
 
 A policy's cell is the mean over its runs (scenes x seeds) with the sample standard deviation; "of
-always" compares with ``always`` on the same scenes and seeds. A trained policy's reward, budget and
-training worlds (from its file's record) are written under the table.
+always" compares with ``always`` on the same scenes and seeds. The completion ratio is given under two
+cullings: the run's (free-space viewpoints with the map's own occlusion, so a floater or a bumpy surface
+hides the surface behind it and costs completion) and NICE-SLAM's (the agents' frustums and depth, as vMAP
+and MACIM score). They can rank schedules differently (docs/schedules.md). A trained policy's reward,
+budget and training worlds (from its file's record) are written under the table.
 """
 
 from __future__ import annotations
@@ -15,22 +18,31 @@ import numpy as np
 
 from mapping.pipeline.records import write_json_atomic
 
+CULLINGS = {"comp_ratio": "", "comp_ratio_nice": "_nice"}
+"""Completion-ratio key per culling, and the suffix of its fields in a policy's means."""
+
 
 def policy_means(rows: list[dict]) -> list[dict]:
-    """Per policy (first appearance order): runs, mean and sd of completion and MB, share of ``always``."""
+    """Per policy (first appearance order): runs, mean and sd of completion (under each culling every run
+    has) and MB, and both against ``always`` on the same scenes and seeds."""
     always = {(r["scene"], r["seed"]): r for r in rows if r["policy"] == "always"}
     out = []
     for policy in dict.fromkeys(r["policy"] for r in rows):
         mine = [r for r in rows if r["policy"] == policy]
-        comp, mb = np.array([r["comp_ratio"] for r in mine]), np.array([r["mb_total"] for r in mine])
+        mb = np.array([r["mb_total"] for r in mine])
         paired = [(r, always[(r["scene"], r["seed"])]) for r in mine if (r["scene"], r["seed"]) in always]
-        out.append({"policy": policy, "runs": len(mine), "comp_ratio": float(comp.mean()),
-                    "comp_sd": float(comp.std(ddof=1)) if len(mine) > 1 else None, "mb": float(mb.mean()),
-                    "mb_sd": float(mb.std(ddof=1)) if len(mine) > 1 else None,
-                    "delta_vs_always": float(np.mean([r["comp_ratio"] - a["comp_ratio"] for r, a in paired]))
-                    if paired else None,
-                    "bytes_vs_always": float(sum(r["mb_total"] for r, _ in paired) /
-                                             max(sum(a["mb_total"] for _, a in paired), 1e-12)) if paired else None})
+        means = {"policy": policy, "runs": len(mine), "mb": float(mb.mean()),
+                 "mb_sd": float(mb.std(ddof=1)) if len(mine) > 1 else None,
+                 "bytes_vs_always": float(sum(r["mb_total"] for r, _ in paired) /
+                                          max(sum(a["mb_total"] for _, a in paired), 1e-12)) if paired else None}
+        for key, suffix in CULLINGS.items():
+            if any(r.get(key) is None for r in mine):
+                continue
+            comp = np.array([r[key] for r in mine])
+            both = [(r, a) for r, a in paired if a.get(key) is not None]
+            means |= {key: float(comp.mean()), f"comp{suffix}_sd": float(comp.std(ddof=1)) if len(mine) > 1 else None,
+                      f"delta{suffix}_vs_always": float(np.mean([r[key] - a[key] for r, a in both])) if both else None}
+        out.append(means)
     return out
 
 
@@ -51,8 +63,9 @@ def learned_note() -> str:
         return "No trained policy ships with this version: `learned` is not in the table."
     training = json.loads(SHIPPED.read_text()).get("training", {})
     env = training.get("env", {})
-    return (f"`learned`: {SHIPPED.name}, trained with `{training.get('command', '?')}` for "
-            f"{training.get('env_steps', '?')} env steps on {len(training.get('scenes', []))} worlds "
+    total = training.get("train", {}).get("total_env_steps", "?")
+    return (f"`learned`: {SHIPPED.name}, trained with `{training.get('command', '?')}` (the snapshot at env step "
+            f"{training.get('env_steps', '?')} of {total}) on {len(training.get('scenes', []))} worlds "
             f"({', '.join(training.get('scenes', [])[:4])}, ...), preset `{env.get('preset')}`, reward "
             f"`{env.get('reward')}`, cost {env.get('comm_cost_per_mb')} per MB, budget {env.get('comm_budget_mb')} MB.")
 
@@ -63,45 +76,75 @@ def write_tradeoff(out: Path, rows: list[dict], notes: str = "") -> dict[str, Pa
     means = policy_means(rows)
     paths = {"json": out / "tradeoff.json", "md": out / "tradeoff.md", "png": out / "tradeoff.png"}
     write_json_atomic(paths["json"], {"table": "tradeoff", "rows": rows, "policies": means})
-    front = set(pareto_front([(m["mb"], m["comp_ratio"]) for m in means]))
-    lines = ["| policy | runs | comp ratio [%] | MB sent (team) | of always's bytes | vs always [points] | Pareto |",
-             "|---|---|---|---|---|---|---|"]
+    fronts = {key: _front(means, key) for key in CULLINGS}
+    lines = ["| policy | runs | comp ratio [%] | MB sent (team) | of always's bytes | vs always [points] | Pareto "
+             "| comp ratio, NICE-SLAM culling [%] | vs always [points] | Pareto |", "|---|---|---|---|---|---|---|---|---|---|"]
     for k, m in enumerate(means):
-        sd = f" ± {m['comp_sd']:.1f}" if m["comp_sd"] is not None else ""
         mb_sd = f" ± {m['mb_sd']:.1f}" if m["mb_sd"] is not None else ""
         share = f"{100 * m['bytes_vs_always']:.0f} %" if m["bytes_vs_always"] is not None else "-"
-        delta = f"{m['delta_vs_always']:+.1f}" if m["delta_vs_always"] is not None else "-"
-        lines.append(f"| {m['policy']} | {m['runs']} | {m['comp_ratio']:.1f}{sd} | {m['mb']:.1f}{mb_sd} | {share} "
-                     f"| {delta} | {'yes' if k in front else ''} |")
+        comp, delta, front = _completion_cells(m, "comp_ratio", "", k in fronts["comp_ratio"])
+        nice = " | ".join(_completion_cells(m, "comp_ratio_nice", "_nice", k in fronts["comp_ratio_nice"]))
+        lines.append(f"| {m['policy']} | {m['runs']} | {comp} | {m['mb']:.1f}{mb_sd} | {share} | {delta} | {front} "
+                     f"| {nice} |")
     text = "\n".join(["## tradeoff: completion ratio against bytes", "", *lines, "", learned_note(), "", notes, ""])
     tmp = paths["md"].with_name("tradeoff.md.tmp")
     tmp.write_text(text)
     tmp.replace(paths["md"])
-    save_tradeoff_plot(paths["png"], rows, means, front)
+    save_tradeoff_plot(paths["png"], rows, means, fronts)
     return paths
 
 
-def save_tradeoff_plot(path: Path, rows: list[dict], means: list[dict], front: set[int]) -> None:
+def _front(means: list[dict], key: str) -> set[int]:
+    """Pareto members among the policies that have ``key``."""
+    have = [k for k, m in enumerate(means) if key in m]
+    return {have[i] for i in pareto_front([(means[k]["mb"], means[k][key]) for k in have])}
+
+
+def _completion_cells(m: dict, key: str, suffix: str, on_front: bool) -> tuple[str, str, str]:
+    """(mean ± sd, vs always, Pareto) of one culling, or dashes when a run lacks it."""
+    if key not in m:
+        return "-", "-", ""
+    sd, delta = m[f"comp{suffix}_sd"], m[f"delta{suffix}_vs_always"]
+    return (f"{m[key]:.1f}{f' ± {sd:.1f}' if sd is not None else ''}", f"{delta:+.1f}" if delta is not None else "-",
+            "yes" if on_front else "")
+
+
+def save_tradeoff_plot(path: Path, rows: list[dict], means: list[dict], fronts: dict[str, set[int]]) -> None:
+    """One panel per culling: every run (small), each policy's mean (large) and the Pareto front."""
     import matplotlib  # noqa: PLC0415
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt  # noqa: PLC0415
 
-    fig, ax = plt.subplots(figsize=(7.5, 5))
+    keys = [key for key in CULLINGS if any(key in m for m in means)]
+    fig, axes = plt.subplots(1, len(keys), figsize=(6.5 * len(keys), 5), squeeze=False)
     colours = plt.get_cmap("tab10")
-    for k, m in enumerate(means):
-        mine = [r for r in rows if r["policy"] == m["policy"]]
-        colour = colours(k % 10)
-        ax.scatter([r["mb_total"] for r in mine], [r["comp_ratio"] for r in mine], s=12, alpha=0.35, color=colour)
-        ax.scatter([m["mb"]], [m["comp_ratio"]], s=60, color=colour, edgecolor="black", label=m["policy"], zorder=3)
-    ordered = [means[i] for i in sorted(front, key=lambda i: means[i]["mb"])]
-    ax.plot([m["mb"] for m in ordered], [m["comp_ratio"] for m in ordered], "k--", lw=1, label="Pareto front")
-    ax.set_xlabel("MB sent by the team over the run")
-    ax.set_ylabel("completion ratio [%] (5 cm, mesh-based)")
+    names = {"comp_ratio": "the run's culling (free-space viewpoints)", "comp_ratio_nice": "NICE-SLAM culling"}
+    for ax, key in zip(axes[0], keys):
+        for k, m in enumerate(means):
+            if key not in m:
+                continue
+            mine = [r for r in rows if r["policy"] == m["policy"]]
+            colour = colours(k % 10)
+            ax.scatter([r["mb_total"] for r in mine], [r[key] for r in mine], s=12, alpha=0.35, color=colour)
+            ax.scatter([m["mb"]], [m[key]], s=60, color=colour, edgecolor="black", label=m["policy"], zorder=3,
+                       marker="os^Dv<>pPX*"[k % 11])
+        ordered = [means[i] for i in sorted(fronts[key], key=lambda i: means[i]["mb"])]
+        ax.plot([m["mb"] for m in ordered], [m[key] for m in ordered], "k--", lw=1, label="Pareto front")
+        sending = [r[key] for r in rows if r["mb_total"] > 0 and r.get(key) is not None]
+        silent = [m for m in means if key in m and m["mb"] == 0]
+        if sending and silent and min(m[key] for m in silent) < min(sending) - 10:  # zoom in on the sending ones
+            ax.set_ylim(min(sending) - 2, max(sending) + 1)
+            ax.text(0.02, 0.02, "; ".join(f"{m['policy']} (0 MB): {m[key]:.1f} %, below" for m in silent),
+                    transform=ax.transAxes, fontsize=8)
+        ax.set_xlabel("MB sent by the team over the run")
+        ax.set_ylabel("completion ratio [%] (5 cm, mesh-based)")
+        ax.set_title(names[key], fontsize=10)
+        ax.grid(alpha=0.3)
+    axes[0][0].legend(fontsize=7, loc="lower right")
     scenes = sorted({r["scene"] for r in rows})
-    ax.set_title(f"Completion against bytes: {', '.join(scenes)}; means (large) and runs (small)", fontsize=10)
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=7, loc="lower right")
+    fig.suptitle(f"Completion against bytes: {', '.join(scenes)}, seeds {sorted({r['seed'] for r in rows})}; "
+                 "means (large) and runs (small)", fontsize=10)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
