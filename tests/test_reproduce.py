@@ -264,3 +264,31 @@ def test_a_setting_added_at_its_old_behaviour_leaves_recorded_rows_valid():
     assert "free_space_rays" not in library_defaults("fast")["mapping"]  # rows from before it still match
     assert settings_record(replace(MappingConfig(), free_space_rays="crossing"))["free_space_rays"] == "crossing"
     assert settings_record(MappingConfig())["sampler"]["n_surface"] == 9  # nested configs kept whole
+
+
+def test_the_papers_orderings_are_weighed_over_paired_runs():
+    from openmulti_env.runs.reproduce.orderings import verdicts, weigh
+
+    assert weigh([]) == ("not run", None, None)
+    assert weigh([1.5])[0] == "one run"
+    assert weigh([2.0, 2.2, 1.8])[0] == "holds"
+    assert weigh([-2.0, -2.2, -1.8])[0] == "missed"
+    assert weigh([2.0, -0.5, 1.0])[0] == "within noise"  # one pair of the other sign
+    assert weigh([0.1, 5.0])[0] == "within noise"  # same sign, mean within two standard errors
+
+    def row(method, seed, comp, rate=1.0, scene="room0"):
+        return {"method": method, "scene": scene, "seed": seed, "success_rate": rate, "comp_ratio": comp,
+                "comp_ratio_nice": comp + 1.0}
+    rows = [row("openmulti", s, 90.0 + s) for s in range(3)] + [row("openmulti_no_cross", s, 89.0 + s * 1.1)
+                                                                 for s in range(3)]  # differences 1.0, 0.9, 0.8
+    rows.append(row("openmulti_no_cross", 7, 10.0))  # no openmulti run on seed 7: not paired
+    cross = [v for v in verdicts("geometric", rows) if "Cross Rendering" in v.claim]
+    assert [(v.key, v.pairs, v.verdict) for v in cross] == [("comp_ratio", 3, "holds"), ("comp_ratio_nice", 3, "holds")]
+    rows += [row("openmulti", 3, 90.0), row("openmulti_no_cross", 3, 91.5)]  # a fourth pair the other way
+    cross = [v for v in verdicts("geometric", rows) if "Cross Rendering" in v.claim]
+    assert cross[0].pairs == 4 and cross[0].verdict == "within noise" and cross[0].low == pytest.approx(-1.5)
+    failing = [row(m, s, full, 1.0) for m, full in (("openmulti", 90.0), ("dinerf_global", 60.0)) for s in (0, 1)]
+    failing += [row("openmulti", s, 81.0 + s, 0.2) for s in (0, 1)] + [row("dinerf_global", s, 30.0, 0.2) for s in (0, 1)]
+    loss = [v for v in verdicts("comm-failure", failing) if v.key == "comp_ratio"][0]
+    assert loss.pairs == 2 and loss.verdict == "holds"  # openmulti loses 10 / 8.9 %, dinerf_global 50 %
+    assert loss.mean == pytest.approx(50.0 - (10.0 + 100 * 8.0 / 90.0) / 2)

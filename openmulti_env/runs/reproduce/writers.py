@@ -11,6 +11,7 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
+from openmulti_env.runs.reproduce.orderings import ordering_lines
 from openmulti_env.runs.reproduce.tables import PAPER
 from mapping.pipeline.records import write_json_atomic
 
@@ -105,6 +106,9 @@ def markdown_table(table: str, rows: list[dict], notes: str = "") -> str:
                   "semantic": "paper: F-mIoU / F-mAcc (Table II)",
                   "multi-vs-single": "paper: mapping time (Table III)"}[table]
     lines += ["", paper_note + "."]
+    orderings = ordering_lines(table, rows)
+    if orderings:
+        lines += ["", *orderings]
     if len(scenes) > 1:
         lines += ["", *per_scene_lines(table, rows, scenes)]
     if notes:
@@ -168,9 +172,14 @@ def save_plot(path: Path, table: str, rows: list[dict]) -> None:
         scenes = sorted({r["scene"] for r in rows})
         width = 0.8 / len(scenes)
         for k, scene in enumerate(scenes):  # one bar per method and scene (mean +- sd over seeds)
-            stats = [mean_sd([r.get(key) for r in group if r["scene"] == scene]) for group in groups.values()]
-            ax.bar([i + (k - (len(scenes) - 1) / 2) * width for i in range(len(names))], [m or 0.0 for m, _ in stats],
-                   width, yerr=[sd or 0.0 for _, sd in stats], capsize=2, label=scene)
+            values = [[r.get(key) for r in group if r["scene"] == scene] for group in groups.values()]
+            stats = [mean_sd(v) for v in values]
+            xs = [i + (k - (len(scenes) - 1) / 2) * width for i in range(len(names))]
+            ax.bar(xs, [m or 0.0 for m, _ in stats], width, yerr=[sd or 0.0 for _, sd in stats], capsize=2, label=scene)
+            for x, v, (m, sd) in zip(xs, values, stats):  # how many seeds each bar is
+                if m is not None:
+                    ax.text(x, m + (sd or 0.0) + 1, f"n={sum(u is not None for u in v)}", ha="center", fontsize=6)
+        ax.set_ylim(top=ax.get_ylim()[1] * 1.06)  # room for the n= labels
         if len(scenes) > 1:
             ax.legend(fontsize=8)
         ax.set_xticks(range(len(names)), names, rotation=30, ha="right", fontsize=8)
