@@ -164,11 +164,20 @@ def test_several_scenes_get_a_per_scene_section():
     rows = _rows() + [{**r, "scene": "office0", "comp_ratio": 50.0} for r in _rows() if r["method"] == "openmulti"]
     md = markdown_table("geometric", rows)
     section = md[md.index("Per scene"):]
-    assert "| method | success | agents | office0 | room0 |" in section
+    assert "| method | success | agents | office0 | room0 (settings chosen here) |" in section
     # openmulti: office0 50 (all seeds), room0 80-82 free space; 80 NICE-SLAM and unculled in both
     assert "| openmulti | 100 % | 4 | 50.00 ± 0.00 / 80.00 ± 0.00 / 80.00 ± 0.00 | 81.00 ± 1.00 / 80.00 ± 0.00 / 80.00 ± 0.00 |" in section
     assert "| dinerf_global | 100 % | 4 | - / - / - | 61.00 ± 1.00 / 60.00 ± 0.00 / 60.00 ± 0.00 |" in section
     assert "Per scene" not in markdown_table("geometric", _rows())
+
+
+def test_scenes_never_used_for_a_choice_are_reported_apart():
+    held = [{**r, "scene": "room1", "comp_ratio": 10.0} for r in _rows()]
+    md = markdown_table("geometric", _rows() + held)
+    main, apart = md.split("## Scenes never used for a choice (room1)")
+    assert "Scenes room0 (settings chosen here)" in main and "room1" not in main
+    assert "Scenes room1;" in apart and "| 10.00 ± 0.00 |" in apart  # their own means, not mixed into room0's
+    assert "10.00" not in main
 
 def test_unknown_names_get_a_clear_error_listing_the_known_ones(tmp_path):
     with pytest.raises(ValueError, match="unknown table 'table9'.*geometric.*comm-failure"):

@@ -12,7 +12,7 @@ import math
 from pathlib import Path
 
 from openmulti_env.runs.reproduce.orderings import ordering_lines
-from openmulti_env.runs.reproduce.tables import PAPER
+from openmulti_env.runs.reproduce.tables import HELD_OUT_SCENES, PAPER, TUNING_SCENES
 from mapping.pipeline.records import write_json_atomic
 
 CULLING_COLUMNS = (("free space", ""), ("NICE-SLAM", "_nice"), ("unculled", "_unculled"))
@@ -87,18 +87,13 @@ def _paper(table: str, method: str, rate: float) -> str:
 
 
 def markdown_table(table: str, rows: list[dict], notes: str = "") -> str:
-    """The Markdown of ``table``: one line per (method, success rate, agents), means +- sd over runs."""
-    columns = COLUMNS[table]
-    scenes = sorted({r["scene"] for r in rows})
-    seeds = sorted({r["seed"] for r in rows})
-    head = ["method", "success", "agents", "n"] + [c[0] for c in columns] + ["paper"]
-    lines = [f"# {table}", "", f"Scenes {', '.join(scenes)}; seeds {', '.join(map(str, seeds))}; "
-             "cells: mean ± sd over the runs (scenes x seeds).", "",
-             "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
-    for (method, rate, agents), group in group_rows(rows).items():
-        cells = [_cell([r.get(key) for r in group], scale) for _, key, scale in columns]
-        lines.append("| " + " | ".join([method, f"{rate * 100:g} %", str(agents), str(len(group))] + cells
-                                       + [_paper(table, method, rate)]) + " |")
+    """The Markdown of ``table``: one line per (method, success rate, agents), means +- sd over runs; the
+    scenes never used for a choice (``HELD_OUT_SCENES``) in a table of their own."""
+    held = [r for r in rows if r["scene"] in HELD_OUT_SCENES]
+    chosen = [r for r in rows if r["scene"] not in HELD_OUT_SCENES]
+    lines = [f"# {table}", ""]
+    if chosen:
+        lines += method_lines(table, chosen)
     paper_note = {"geometric": "paper: Acc / Comp / Comp ratio (Table I)",
                   "ablation": "paper: Acc / Comp / s per round / MB (Table IV)",
                   "comm-failure": "paper: comp ratio at this success rate (Table V, room_0)",
@@ -106,14 +101,38 @@ def markdown_table(table: str, rows: list[dict], notes: str = "") -> str:
                   "semantic": "paper: F-mIoU / F-mAcc (Table II)",
                   "multi-vs-single": "paper: mapping time (Table III)"}[table]
     lines += ["", paper_note + "."]
-    orderings = ordering_lines(table, rows)
+    orderings = ordering_lines(table, chosen)
     if orderings:
         lines += ["", *orderings]
+    scenes = sorted({r["scene"] for r in chosen})
     if len(scenes) > 1:
-        lines += ["", *per_scene_lines(table, rows, scenes)]
+        lines += ["", *per_scene_lines(table, chosen, scenes)]
+    if held:
+        lines += ["", f"## Scenes never used for a choice ({', '.join(sorted({r['scene'] for r in held}))})", "",
+                  *method_lines(table, held)]
+        held_orderings = ordering_lines(table, held)
+        if held_orderings:
+            lines += ["", *held_orderings]
     if notes:
         lines += ["", notes]
     return "\n".join(lines) + "\n"
+
+
+def method_lines(table: str, rows: list[dict]) -> list[str]:
+    """The scenes and seeds line and the method table of ``rows``."""
+    columns = COLUMNS[table]
+    scenes = sorted({r["scene"] for r in rows})
+    marked = [f"{s} (settings chosen here)" if s in TUNING_SCENES else s for s in scenes]
+    seeds = sorted({r["seed"] for r in rows})
+    head = ["method", "success", "agents", "n"] + [c[0] for c in columns] + ["paper"]
+    lines = [f"Scenes {', '.join(marked)}; seeds {', '.join(map(str, seeds))}; "
+             "cells: mean ± sd over the runs (scenes x seeds).", "",
+             "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for (method, rate, agents), group in group_rows(rows).items():
+        cells = [_cell([r.get(key) for r in group], scale) for _, key, scale in columns]
+        lines.append("| " + " | ".join([method, f"{rate * 100:g} %", str(agents), str(len(group))] + cells
+                                       + [_paper(table, method, rate)]) + " |")
+    return lines
 
 
 HEADLINE = {"geometric": ("comp_ratio", "comp_ratio_nice", "comp_ratio_unculled"), "semantic": ("f_miou",),
@@ -129,7 +148,8 @@ def per_scene_lines(table: str, rows: list[dict], scenes: list[str]) -> list[str
     names = {"comp_ratio": "comp ratio [free space]", "comp_ratio_nice": "[NICE-SLAM]",
              "comp_ratio_unculled": "[unculled]", "bytes_per_round": "MB/round/agent"}
     lines = [f"Per scene: {' / '.join(names.get(k, k) for k in keys)}, mean ± sd over seeds.", "",
-             "| method | success | agents | " + " | ".join(scenes) + " |", "|" + "---|" * (3 + len(scenes))]
+             "| method | success | agents | " + " | ".join(f"{s} (settings chosen here)" if s in TUNING_SCENES else s
+                                                     for s in scenes) + " |", "|" + "---|" * (3 + len(scenes))]
     for (method, rate, agents), group in group_rows(rows).items():
         cells = [" / ".join(_cell([r.get(k) for r in group if r["scene"] == scene], scale) for k in keys)
                  for scene in scenes]
