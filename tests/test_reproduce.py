@@ -256,9 +256,15 @@ def test_tradeoff_table_runs_each_policy_on_each_scene_and_marks_the_pareto_fron
     assert means["every:2"]["delta_vs_always"] == pytest.approx(-15.0)
     md = (tmp_path / "tradeoff.md").read_text()
     assert means["every:2"]["delta_nice_vs_always"] == pytest.approx(-10.0)
-    assert "| every:2 | 2 | 64.5 ± 0.7 | 0.0 ± 0.0 | 50 % | -15.0 | yes | 79.5 ± 0.7 | -10.0 | yes |" in md
+    assert "| every:2 | 2 | 64.5 ± 0.7 | 0.0 ± 0.0 | 50 % | -15.0 | yes | 79.5 ± 0.7 | -10.0 | yes |" in md  # sd 0: none
     assert (tmp_path / "tradeoff.png").stat().st_size > 1000
     assert pareto_front([(1.0, 50.0), (2.0, 40.0), (3.0, 60.0)]) == [0, 2]
+    reproduce("tradeoff", ["tiny"], [2], "tiny", tmp_path, run_fn=_fake_run([]), progress=False, methods=["always"])
+    written = reproduce("tradeoff", ["tiny"], [0, 1, 2], "tiny", tmp_path, run_fn=_fake_run([]), progress=False,
+                        run_missing=False)
+    md = (tmp_path / "tradeoff.md").read_text()
+    assert len(written["tradeoff"]) == 7 and "| always | 2 |" in md  # seed 2 has only always: not in the means
+    assert "Left out until every policy has run its cell: 1 runs on tiny seed 2" in md
     with pytest.raises(ValueError, match="not in table 'tradeoff'"):
         reproduce("tradeoff", ["tiny"], [0], "tiny", tmp_path, run_fn=_fake_run([]), methods=["sometimes"])
 

@@ -1,8 +1,9 @@
 """The trade-off table's files: final completion ratio (mesh-based, the run's protocol) against the MB the
 team sent, per communication policy, with the Pareto front.
 
-A policy's cell is the mean over its runs (scenes x seeds) with the sample standard deviation; "of
-always" compares with ``always`` on the same scenes and seeds. The completion ratio is given under two
+A policy's cell is the mean over its runs (scenes x seeds) with the sample standard deviation, over the
+scene-seed cells every policy has run; "of always" and "vs always" compare with ``always`` on the same scenes
+and seeds (paired: the sd there is the paired differences'). The completion ratio is given under two
 cullings: the run's (free-space viewpoints with the map's own occlusion, so a floater or a bumpy surface
 hides the surface behind it and costs completion) and NICE-SLAM's (the agents' frustums and depth, as vMAP
 and MACIM score). They can rank schedules differently (docs/schedules.md). A trained policy's reward,
@@ -40,10 +41,21 @@ def policy_means(rows: list[dict]) -> list[dict]:
                 continue
             comp = np.array([r[key] for r in mine])
             both = [(r, a) for r, a in paired if a.get(key) is not None]
+            deltas = np.array([r[key] - a[key] for r, a in both])
             means |= {key: float(comp.mean()), f"comp{suffix}_sd": float(comp.std(ddof=1)) if len(mine) > 1 else None,
-                      f"delta{suffix}_vs_always": float(np.mean([r[key] - a[key] for r, a in both])) if both else None}
+                      f"delta{suffix}_vs_always": float(deltas.mean()) if both else None,
+                      f"delta{suffix}_sd": float(deltas.std(ddof=1)) if len(both) > 1 else None}
         out.append(means)
     return out
+
+
+def common_cells(rows: list[dict]) -> tuple[list[dict], list[dict]]:
+    """(rows on the scene-seed cells every policy has run, the other rows): means over unequal cells would
+    compare policies on different worlds."""
+    cells = [{(r["scene"], r["seed"]) for r in rows if r["policy"] == p} for p in dict.fromkeys(r["policy"] for r in rows)]
+    shared = set.intersection(*cells) if cells else set()
+    return ([r for r in rows if (r["scene"], r["seed"]) in shared],
+            [r for r in rows if (r["scene"], r["seed"]) not in shared])
 
 
 def pareto_front(points: list[tuple[float, float]]) -> list[int]:
@@ -73,7 +85,11 @@ def learned_note() -> str:
 def write_tradeoff(out: Path, rows: list[dict], notes: str = "") -> dict[str, Path]:
     """``tradeoff.json`` (rows and per-policy means), ``tradeoff.md`` and ``tradeoff.png``."""
     out.mkdir(parents=True, exist_ok=True)
-    means = policy_means(rows)
+    complete, pending = common_cells(rows)
+    unequal = not complete
+    if unequal:  # no cell has every policy yet: say so rather than show nothing
+        complete, pending = rows, []
+    means = policy_means(complete)
     paths = {"json": out / "tradeoff.json", "md": out / "tradeoff.md", "png": out / "tradeoff.png"}
     write_json_atomic(paths["json"], {"table": "tradeoff", "rows": rows, "policies": means})
     fronts = {key: _front(means, key) for key in CULLINGS}
@@ -86,11 +102,20 @@ def write_tradeoff(out: Path, rows: list[dict], notes: str = "") -> dict[str, Pa
         nice = " | ".join(_completion_cells(m, "comp_ratio_nice", "_nice", k in fronts["comp_ratio_nice"]))
         lines.append(f"| {m['policy']} | {m['runs']} | {comp} | {m['mb']:.1f}{mb_sd} | {share} | {delta} | {front} "
                      f"| {nice} |")
-    text = "\n".join(["## tradeoff: completion ratio against bytes", "", *lines, "", learned_note(), "", notes, ""])
+    cells = sorted({(r["scene"], r["seed"]) for r in complete})
+    said = [f"Means over the {len(cells)} scene-seed cells {'some' if unequal else 'every'} policy has run: "
+            f"{', '.join(f'{scene} seed {seed}' for scene, seed in cells)}"
+            f"{' (no cell has every policy yet: the means compare different worlds)' if unequal else ''}."]
+    if pending:
+        waiting = sorted({(r["scene"], r["seed"]) for r in pending})
+        said.append(f"Left out until every policy has run its cell: {len(pending)} runs on "
+                    f"{', '.join(f'{scene} seed {seed}' for scene, seed in waiting)} (in tradeoff.json's rows).")
+    text = "\n".join(["## tradeoff: completion ratio against bytes", "", *lines, "", *said, "", learned_note(), "",
+                       notes, ""])
     tmp = paths["md"].with_name("tradeoff.md.tmp")
     tmp.write_text(text)
     tmp.replace(paths["md"])
-    save_tradeoff_plot(paths["png"], rows, means, fronts)
+    save_tradeoff_plot(paths["png"], complete, means, fronts)
     return paths
 
 
@@ -104,8 +129,9 @@ def _completion_cells(m: dict, key: str, suffix: str, on_front: bool) -> tuple[s
     """(mean ± sd, vs always, Pareto) of one culling, or dashes when a run lacks it."""
     if key not in m:
         return "-", "-", ""
-    sd, delta = m[f"comp{suffix}_sd"], m[f"delta{suffix}_vs_always"]
-    return (f"{m[key]:.1f}{f' ± {sd:.1f}' if sd is not None else ''}", f"{delta:+.1f}" if delta is not None else "-",
+    sd, delta, delta_sd = m[f"comp{suffix}_sd"], m[f"delta{suffix}_vs_always"], m[f"delta{suffix}_sd"]
+    return (f"{m[key]:.1f}{f' ± {sd:.1f}' if sd is not None else ''}",
+            "-" if delta is None else f"{delta:+.1f}" + (f" ± {delta_sd:.1f}" if delta_sd else ""),
             "yes" if on_front else "")
 
 
