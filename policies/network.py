@@ -3,7 +3,8 @@
 ``CommFeatures`` reads an observation (``policies.observation``): a small CNN over the ``map`` planes,
 pooled to a fixed 4 x 4 so any map size gives the same features, and an MLP over the ``comm`` vector;
 ``CommPolicyNetwork`` adds the action head: one logit per action entry (send parameters / share rays per
-peer), acted on as independent Bernoulli draws (training) or their mode, logit > 0 (a deployed policy).
+peer; action form ``entries``) or one per agent broadcast to all its entries (``round``: send everything
+now or not, ``policies.gate``), acted on as Bernoulli draws (training) or their mode, logit > 0.
 The trainer wraps ``CommFeatures`` as Stable-Baselines3's features extractor, so the weights it learns
 load here unchanged.
 """
@@ -15,6 +16,8 @@ from dataclasses import asdict, dataclass
 import numpy as np
 import torch
 from torch import nn
+
+from policies.gate import check_action_form
 
 
 @dataclass(frozen=True)
@@ -28,6 +31,17 @@ class NetworkConfig:
     map_features: int = 128
     comm_features: int = 64
     features: int = 128
+    action_form: str = "entries"
+    """``entries`` (a logit per action entry) or ``round`` (one logit, broadcast); files written before the
+    round form existed have no such key and are ``entries``."""
+
+    def __post_init__(self) -> None:
+        check_action_form(self.action_form)
+
+    @property
+    def heads(self) -> int:
+        """Logits of the action head."""
+        return 1 if self.action_form == "round" else self.actions
 
     def as_dict(self) -> dict:
         return {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(self).items()}
@@ -66,19 +80,21 @@ class CommFeatures(nn.Module):
 
 
 class CommPolicyNetwork(nn.Module):
-    """Features and the action head (``actions`` logits)."""
+    """Features and the action head (``config.heads`` logits)."""
 
     def __init__(self, config: NetworkConfig):
         super().__init__()
         self.config = config
         self.features = CommFeatures(config)
-        self.action = nn.Linear(config.features, config.actions)
+        self.action = nn.Linear(config.features, config.heads)
 
     @torch.no_grad()
     def act(self, map_hwc: np.ndarray, comm: np.ndarray, rng: np.random.Generator | None = None) -> np.ndarray:
-        """(B, actions) int8: each Bernoulli entry drawn with ``rng`` (the policy as trained), or its mode
-        (logit > 0) when ``rng`` is None."""
+        """(B, actions) int8: each Bernoulli head drawn with ``rng`` (the policy as trained), or its mode
+        (logit > 0) when ``rng`` is None; a ``round`` head's draw is every entry of its agent."""
         logits = self.action(self.features.observe(map_hwc, comm)).double().cpu().numpy()
         if rng is None:
-            return (logits > 0).astype(np.int8)
-        return (rng.random(logits.shape) < 0.5 * (1.0 + np.tanh(0.5 * logits))).astype(np.int8)  # sigmoid, no overflow
+            drawn = (logits > 0).astype(np.int8)
+        else:
+            drawn = (rng.random(logits.shape) < 0.5 * (1.0 + np.tanh(0.5 * logits))).astype(np.int8)  # sigmoid
+        return np.repeat(drawn, self.config.actions, axis=1) if self.config.action_form == "round" else drawn

@@ -45,6 +45,9 @@ class TrainConfig:
     """A checkpoint, a policy file and a log flush every this many env steps."""
     rolling: int = 20
     """Episodes in the rolling mean that picks the best policy."""
+    action_form: str = "entries"
+    """``entries``: a Bernoulli per action entry; ``round``: one per agent, send everything or nothing
+    (``policies.gate``)."""
 
 
 def same_run(old: dict, new: dict) -> bool:
@@ -52,6 +55,7 @@ def same_run(old: dict, new: dict) -> bool:
     def core(settings: dict) -> dict:
         kept = {k: v for k, v in settings.items() if k not in ("command", "title")}
         kept["train"] = {k: v for k, v in settings.get("train", {}).items() if k != "total_env_steps"}
+        kept["train"].setdefault("action_form", "entries")  # runs begun before the round form were entries
         return kept
     return core(old) == core(new)
 
@@ -179,6 +183,7 @@ def train(env_factory: Callable[[int], object], config: TrainConfig, out: str | 
     from stable_baselines3.common.callbacks import BaseCallback  # noqa: PLC0415
 
     from policies.files import save_policy  # noqa: PLC0415
+    from policies.gate import GatedFactory, check_action_form  # noqa: PLC0415
     from policies.network import NetworkConfig  # noqa: PLC0415
     from policies.observation import MAP_CHANNELS  # noqa: PLC0415
     from policies.sb3_vec import sb3_vec_env_from_factory  # noqa: PLC0415
@@ -187,10 +192,14 @@ def train(env_factory: Callable[[int], object], config: TrainConfig, out: str | 
     settings = claim_run_folder(out, {"train": asdict(config), **training_record})
 
     # ---- the vector env: every agent of every worker's env one entry, one shared policy -------------------
-    vec, num_agents = sb3_vec_env_from_factory(env_factory, config.workers, config.seed)
+    # (the round form learns on a gated env: one action entry per agent, broadcast to the env's entries)
+    gated = check_action_form(config.action_form) == "round"
+    vec, num_agents = sb3_vec_env_from_factory(GatedFactory(env_factory) if gated else env_factory, config.workers,
+                                               config.seed)
     space = vec.observation_space
+    entries = 2 * (num_agents - 1) if gated else int(vec.action_space.n)  # the env's layout (policies.scripted)
     network_config = NetworkConfig(map_channels=len(MAP_CHANNELS), comm_size=int(space["comm"].shape[0]),
-                                   actions=int(vec.action_space.n)).as_dict()
+                                   actions=entries, action_form=config.action_form).as_dict()
 
     # ---- PPO, fresh or from the last checkpoint ----------------------------------------------------------
     checkpoint = out / "checkpoint.zip"

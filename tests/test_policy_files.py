@@ -148,3 +148,70 @@ def test_the_shipped_policy_loads_acts_for_four_agents_and_refuses_other_teams()
     assert set(actions) == set(obs) and all(a.shape == (6,) and set(a.tolist()) <= {0, 1} for a in actions.values())
     with pytest.raises(PolicyError, match="for 4 agents; the team has 3"):
         make_policy("learned", 3)
+
+
+def test_the_round_form_draws_one_decision_per_agent_and_round_trips(tmp_path):
+    torch = pytest.importorskip("torch")
+    torch.manual_seed(0)
+    network = CommPolicyNetwork(NetworkConfig(len(MAP_CHANNELS), comm_size(3), 4, action_form="round"))
+    assert network.action.out_features == 1
+    rng = np.random.default_rng(0)
+    maps = rng.integers(0, 256, (3, 16, 16, len(MAP_CHANNELS)), dtype=np.uint8)
+    comms = rng.random((3, comm_size(3))).astype(np.float32)
+    drawn = np.stack([network.act(maps, comms, np.random.default_rng(s)) for s in range(300)])
+    assert drawn.shape == (300, 3, 4) and np.all(drawn == drawn[..., :1])  # every entry of an agent: one draw
+    with torch.no_grad():
+        probs = torch.sigmoid(network.action(network.features.observe(maps, comms))).numpy()[:, 0]
+    np.testing.assert_allclose(drawn[..., 0].mean(axis=0), probs, atol=0.1)
+    path = save_policy(tmp_path / "round", network, 3, {"command": "test"})
+    loaded, record = load_policy(path, 3)
+    assert record["architecture"]["action_form"] == "round" and loaded.config == network.config
+    np.testing.assert_array_equal(loaded.act(maps, comms), network.act(maps, comms))
+    entries = {**record, "architecture": {k: v for k, v in record["architecture"].items() if k != "action_form"}}
+    assert NetworkConfig.from_dict(entries["architecture"]).action_form == "entries"  # files from before the form
+    bad = {**record, "architecture": {**record["architecture"], "action_form": "peers"}}
+    (tmp_path / "bad.json").write_text(json.dumps(bad))
+    (tmp_path / "bad.safetensors").write_bytes((tmp_path / "round.safetensors").read_bytes())
+    with pytest.raises(PolicyError, match="unknown action form 'peers'"):
+        load_policy(tmp_path / "bad.json")
+
+
+def test_the_round_gate_is_a_parallel_env_that_sends_everything_or_nothing(tmp_path):
+    from pettingzoo.test import parallel_api_test
+
+    from openmulti_env import parallel_env
+    from policies.gate import RoundGate
+
+    def gated():
+        return RoundGate(parallel_env(preset="rl_tiny", num_agents=3, cache_dir=str(tmp_path / "worlds")))
+
+    parallel_api_test(gated(), num_cycles=10)
+    env = gated()
+    assert env.action_space("agent_0").n == 1
+    env.reset(seed=0)
+    *_, infos = env.step({"agent_0": np.array([1]), "agent_1": np.array([0]), "agent_2": np.array([0])})
+    assert infos["agent_0"]["bytes_sent_total"] > 0
+    assert infos["agent_1"]["bytes_sent_total"] == 0 == infos["agent_2"]["bytes_sent_total"]
+    with pytest.raises(ValueError, match="agent_1: a round-form action is one entry"):
+        env.step({"agent_0": np.array([1]), "agent_1": np.array([1, 0, 1, 0]), "agent_2": np.array([0])})
+
+
+def test_training_in_the_round_form_ships_a_policy_that_sends_all_or_nothing(tmp_path):
+    pytest.importorskip("stable_baselines3")
+    pytest.importorskip("supersuit")
+    from openmulti_env.runs.train import WorkerEnvs
+    from policies.train import TrainConfig, train
+
+    factory = WorkerEnvs(("tiny",), workers=1, env_kwargs={"preset": "rl_tiny", "num_agents": 3,
+                                                            "cache_dir": str(tmp_path / "worlds")})
+    config = TrainConfig(total_env_steps=8, workers=1, n_steps=8, batch_size=24, n_epochs=1, chunk_env_steps=8,
+                         action_form="round")
+    best = train(factory, config, tmp_path / "run", {"command": "test"}, progress=False)
+    policy = make_policy(str(best), 3, seed=0)
+    assert policy.record["architecture"]["action_form"] == "round"
+    obs = {f"agent_{i}": observation(3) for i in range(3)}
+    for step in range(20):
+        assert all(len(set(a.tolist())) == 1 and a.shape == (4,) for a in policy(obs, None, step).values())
+    with pytest.raises(ValueError, match="other settings"):  # a run folder keeps its action form
+        train(factory, TrainConfig(**{**config.__dict__, "action_form": "entries"}), tmp_path / "run", {},
+              progress=False)

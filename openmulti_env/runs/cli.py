@@ -338,6 +338,9 @@ def build_parser() -> argparse.ArgumentParser:
                    "MB over the team size)")
     p.add_argument("--comm-budget-mb", type=float, metavar="MB", help="megabytes each agent may send per episode")
     p.add_argument("--horizon", type=int, help="steps per episode (default: until the paths end)")
+    p.add_argument("--action-form", choices=("entries", "round"), default="entries",
+                   help="entries: a send decision per peer and half (parameters, rays); round: one per agent and "
+                   "round, everything to every peer or nothing (sb3 backend)")
     p.add_argument("--n-steps", type=int, default=32, help="PPO: rounds per worker and agent between updates")
     p.add_argument("--batch-size", type=int, default=64, help="PPO minibatch")
     p.add_argument("--learning-rate", type=float, default=3e-4, help="PPO learning rate")

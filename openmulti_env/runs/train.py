@@ -130,6 +130,10 @@ def train_command(args) -> int:
             raise ValueError(f"openmulti train --backend {backend} needs {module}: pip install '{extra}' (make setup "
                              "installs it)") from None
 
+    action_form = getattr(args, "action_form", "entries")
+    if action_form != "entries" and backend == "rllib":
+        raise ValueError(f"--action-form {action_form} trains with the sb3 backend only (RLlib's module draws one "
+                         "Bernoulli per action entry)")
     scenes = tuple(args.scenes) if args.scenes else DEFAULT_TRAIN_SCENES
     check_training_scenes(scenes)
     env_kwargs = {"preset": args.preset, "num_agents": args.agents, "reward": args.reward,
@@ -138,9 +142,10 @@ def train_command(args) -> int:
     factory = WorkerEnvs(scenes, args.workers, args.episodes_per_world, env_kwargs)
     config = TrainConfig(total_env_steps=args.env_steps, workers=args.workers, n_steps=args.n_steps,
                          batch_size=args.batch_size, learning_rate=args.learning_rate, ent_coef=args.ent_coef,
-                         seed=args.seed, chunk_env_steps=args.chunk_env_steps)
+                         seed=args.seed, chunk_env_steps=args.chunk_env_steps, action_form=action_form)
     record = {"command": "openmulti train " + " ".join(shlex.quote(a) for a in sys.argv[2:]), "scenes": list(scenes),
-              "env": env_kwargs, "title": f"{args.preset}, {args.agents} agents, cost {args.comm_cost_per_mb}/MB"}
+              "env": env_kwargs, "title": f"{args.preset}, {args.agents} agents, cost {args.comm_cost_per_mb}/MB"
+              f"{', round form' if action_form == 'round' else ''}"}
     if backend == "rllib":
         from policies.train_rllib import train_rllib  # noqa: PLC0415
 
