@@ -11,6 +11,8 @@ for what an observation holds); the fixed schedules here ignore the observations
 - ``round_robin``: each round every agent talks to one peer, in turn;
 - ``budget``: always, until the agent's byte budget is spent (``infos[agent]["budget_left_mb"]``);
 - ``every:K``: everything to every peer on every K-th round (rounds 0, K, 2K, ...), nothing between;
+- ``at:R1,R2,...``: everything to every peer on the listed rounds (0-based), nothing on the others: any
+  timing of whole rounds (``every:3`` on 12 rounds is ``at:0,3,6,9``);
 - ``rate:Q``: each entry of each action 1 with probability Q (seeded), the fixed-rate baseline a
   schedule must beat at equal bytes;
 - ``bernoulli:P``: is not a schedule but a channel: ``always``, with each message arriving with
@@ -29,8 +31,8 @@ from typing import Mapping
 import numpy as np
 
 SCRIPTED_POLICIES = ("always", "never", "round_robin", "budget")
-POLICY_FORMS = "always, never, round_robin, budget, every:K, rate:Q, bernoulli:P, novelty[:settings], learned or " \
-               "a trained policy file (either with :mode for the deterministic mode of each entry)"
+POLICY_FORMS = "always, never, round_robin, budget, every:K, at:R1,R2,..., rate:Q, bernoulli:P, novelty[:settings], " \
+               "learned or a trained policy file (either with :mode for the deterministic mode of each entry)"
 
 
 class PolicyError(ValueError):
@@ -43,7 +45,7 @@ class PolicySpec:
 
     name: str
     rule: str
-    """always, never, round_robin, budget, every, rate, novelty, learned or file."""
+    """always, never, round_robin, budget, every, at, rate, novelty, learned or file."""
     success_probability: float = 1.0
     settings: dict = field(default_factory=dict)
 
@@ -69,6 +71,10 @@ def parse_policy(name: str) -> PolicySpec:
     if head == "every" and arg:
         return PolicySpec(name, "every", settings={"k": _number(name, arg, int, 1, 10**6,
                                                                  "every:K needs a whole number of rounds K >= 1")})
+    if head == "at" and arg:
+        rounds = tuple(sorted({_number(name, r.strip(), int, 0, 10**6, "at:R1,R2,... needs rounds as whole numbers >= 0 "
+                                                                   "separated by commas") for r in arg.split(",")}))
+        return PolicySpec(name, "at", settings={"rounds": rounds})
     if head == "rate" and arg:
         return PolicySpec(name, "rate", settings={"q": _number(name, arg, float, 0.0, 1.0,
                                                                 "rate:Q needs a probability Q in [0, 1]")})
@@ -97,7 +103,7 @@ class ScriptedPolicy:
 
     def __init__(self, spec: PolicySpec | str, num_agents: int, seed: int = 0):
         self.spec = parse_policy(spec) if isinstance(spec, str) else spec
-        if self.spec.rule not in SCRIPTED_POLICIES + ("every", "rate"):
+        if self.spec.rule not in SCRIPTED_POLICIES + ("every", "at", "rate"):
             raise PolicyError(f"{self.spec.name} is not a fixed schedule; make it with policies.make_policy")
         if num_agents < 1:
             raise PolicyError("num_agents must be >= 1")
@@ -125,6 +131,8 @@ class ScriptedPolicy:
                 half = np.full(width, 1 if left > 0 else 0, np.int8)
             elif rule == "every":
                 half = np.full(width, 1 if step % self.spec.settings["k"] == 0 else 0, np.int8)
+            elif rule == "at":
+                half = np.full(width, 1 if step in self.spec.settings["rounds"] else 0, np.int8)
             else:  # always
                 half = np.ones(width, np.int8)
             out[name] = np.concatenate([half, half])

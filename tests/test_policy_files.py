@@ -43,6 +43,9 @@ def test_fixed_rate_schedules():
     every = make_policy("every:3", 4)
     sends = [every(None, None, step)["agent_0"].sum() for step in range(6)]
     assert sends == [6, 0, 0, 6, 0, 0]
+    at = make_policy("at:4, 0,2", 4)  # any whole rounds, in any order
+    assert [at(None, None, step)["agent_3"].sum() for step in range(6)] == [6, 0, 6, 0, 6, 0]
+    assert [make_policy("at:0,3", 4)(None, None, step) for step in range(4)][0]["agent_0"].tolist() == [1] * 6
     rate = [make_policy("rate:0.25", 4, seed=s)(None, None, 0) for s in (1, 1, 2)]
     assert all(np.array_equal(rate[0][a], rate[1][a]) for a in rate[0])  # seeded
     draws = np.concatenate([make_policy("rate:0.25", 4, seed=s)(None, None, 0)["agent_1"] for s in range(200)])
@@ -50,6 +53,7 @@ def test_fixed_rate_schedules():
 
 
 @pytest.mark.parametrize("bad, message", [("every:0", "K >= 1"), ("rate:1.5", "Q in \\[0, 1\\]"),
+                                          ("at:1,-2", "rounds as whole numbers >= 0"), ("at:1;2", "separated by commas"),
                                           ("novelty:speed=2", "name=value pairs"), ("novelty:rays=maybe", "rays must"),
                                           ("sometimes", "unknown policy"), ("runs/x/best.json", "does not exist"),
                                           ("runs/x/best.json:mode", "file .runs/x/best.json. does not exist")])

@@ -209,7 +209,8 @@ def build_parser() -> argparse.ArgumentParser:
                    "the path of a JSON/YAML manifest of your own meshes")
     p.add_argument("--agents", type=_agents, default=4, help="agents in the team (each maps its own region)")
     p.add_argument("--policy", default="always", help="communication policy: always, never, round_robin, budget "
-                   "(with --comm-budget-mb), every:K (everything every K-th round), rate:Q (each link with "
+                   "(with --comm-budget-mb), every:K (everything every K-th round), at:R1,R2,... (everything on the listed "
+                   "rounds), rate:Q (each link with "
                    "probability Q), bernoulli:P (always; each message arrives with probability P), novelty[:k=v,...] "
                    "(reads the observations: policies/novelty.py), learned (the trained policy shipped with the "
                    "package) or a trained policy file (.json beside its .safetensors)")

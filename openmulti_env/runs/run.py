@@ -155,7 +155,7 @@ def run_data(data: str | Path, agents: int, policy: str, preset: str, seed: int,
     chosen, scripted, workers, image_encoder = begun.preset, begun.policy, begun.workers, begun.image_encoder
     if scripted.reads_observations:
         raise ValueError(f"policy {policy!r} reads observations, which need the room's box; data-set runs take the "
-                         "fixed schedules (always, never, round_robin, budget, every:K, rate:Q, bernoulli:P)")
+                         "fixed schedules (always, never, round_robin, budget, every:K, at:R1,R2,..., rate:Q, bernoulli:P)")
     encoder = shared_text_encoder(name=chosen.text_encoder)
     inputs = prepare_inputs(data, kind, agents, frames, intrinsics, depth_scale, gt_mesh, encoder, image_encoder,
                             culling_edge_m=chosen.culling_edge_m, seed=seed, progress=progress,
