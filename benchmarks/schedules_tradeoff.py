@@ -54,9 +54,10 @@ def policy_names(episodes: dict[tuple[str, int], dict[str, dict]]) -> list[str]:
 
 
 def short(policy: str) -> str:
-    """A policy file by its stem (``runs/x/best.json:mode`` -> ``best:mode``)."""
+    """A policy file by its run folder and stem (``runs/x/best.json:mode`` -> ``x/best:mode``), so that two
+    runs' ``best`` stay apart."""
     base, mode = (policy[:-len(":mode")], ":mode") if policy.endswith(":mode") else (policy, "")
-    return Path(base).stem + mode if base.endswith(".json") else policy
+    return f"{Path(base).parent.name}/{Path(base).stem}{mode}" if base.endswith(".json") else policy
 
 
 def summary(episodes: dict[tuple[str, int], dict[str, dict]]) -> str:
