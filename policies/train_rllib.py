@@ -111,6 +111,9 @@ def train_rllib(env_factory: Callable[[int], object], config: TrainConfig, out: 
     from policies.observation import MAP_CHANNELS  # noqa: PLC0415
     from policies.rllib_module import CommRLModule, export_module  # noqa: PLC0415
 
+    if config.action_form != "entries":
+        raise ValueError(f"action form {config.action_form!r} trains with the SB3 backend only (policies.train); "
+                         "RLlib's module draws one Bernoulli per action entry")
     if config.workers < 1:
         raise ValueError(f"the RLlib backend needs at least one env runner (--workers), got {config.workers}")
     out = Path(out)

@@ -111,3 +111,16 @@ def test_train_refuses_ray_without_the_rllib_backend():
     args = SimpleNamespace(backend="sb3", ray="auto")
     with pytest.raises(ValueError, match="add --backend rllib"):
         train_command(args)
+
+
+def test_the_round_action_form_is_refused_by_the_rllib_backend(tmp_path):
+    pytest.importorskip("ray.rllib")
+    from openmulti_env.runs.train import train_command
+    from policies.train import TrainConfig
+    from policies.train_rllib import train_rllib
+
+    with pytest.raises(ValueError, match="SB3 backend only"):
+        train_rllib(lambda index: None, TrainConfig(action_form="round"), tmp_path / "run", {})
+    args = SimpleNamespace(backend="rllib", ray=None, action_form="round")
+    with pytest.raises(ValueError, match="--action-form round trains with the sb3 backend only"):
+        train_command(args)
