@@ -57,7 +57,10 @@ def short(policy: str) -> str:
     """A policy file by its run folder and stem (``runs/x/best.json:mode`` -> ``x/best:mode``), so that two
     runs' ``best`` stay apart."""
     base, mode = (policy[:-len(":mode")], ":mode") if policy.endswith(":mode") else (policy, "")
-    return f"{Path(base).parent.name}/{Path(base).stem}{mode}" if base.endswith(".json") else policy
+    if not base.endswith(".json"):
+        return policy
+    folder = Path(base).parent.name
+    return f"{folder}/{Path(base).stem}{mode}" if folder else f"{Path(base).stem}{mode}"
 
 
 def summary(episodes: dict[tuple[str, int], dict[str, dict]]) -> str:

@@ -6,7 +6,7 @@ import json
 
 import pytest
 
-from benchmarks.schedules_tradeoff import front_at, load_rows, summary
+from benchmarks.schedules_tradeoff import front_at, load_rows, short, summary
 
 
 def test_front_is_the_upper_envelope_read_at_equal_bytes():
@@ -25,6 +25,7 @@ def test_summary_pairs_each_policy_with_always_and_the_front(tmp_path):
     path = tmp_path / "rows.jsonl"
     path.write_text("\n".join(json.dumps(r) for r in rows))
     text = summary(load_rows(path))
+    assert short("runs/a/best.json:mode") == "a/best:mode" and short("runs/b/best.json") == "b/best"  # runs apart
     line = next(ln for ln in text.splitlines() if ln.startswith("| p |"))
     assert "50 %" in line and "+2.9 (min +2.7" in line  # 58 vs 55 and 52.2 vs 49.5 at the same bytes
     assert text.startswith("2 episodes")
