@@ -61,10 +61,12 @@ class MappingAgent:
         is_structure: tells whether an instance id is a wall/floor/ceiling (wider network, more rays).
         device: "cpu", "cuda" or "auto".
         seed: drives network initialisation and ray sampling.
+        init_seed: draws the initial networks instead of ``seed`` (a team's global map: the same for every
+            agent, ``TeamConfig.shared_global_init``).
     """
 
     def __init__(self, config: MappingConfig | None = None, is_structure: Callable[[int], bool] = lambda _: False,
-                 device: str = "auto", seed: int = 0, agent_index: int = 0):
+                 device: str = "auto", seed: int = 0, agent_index: int = 0, init_seed: int | None = None):
         self.config = config or MappingConfig()
         self.is_structure = is_structure
         self.device = resolve_device(device)
@@ -74,7 +76,7 @@ class MappingAgent:
         # Generators live on the device they draw for: ``generator`` samples rays on ``device``;
         # ``init_generator`` (CPU) draws initial networks, so a seed gives the same network anywhere.
         self.generator = torch.Generator(device=self.device).manual_seed(seed)
-        self.init_generator = torch.Generator().manual_seed(seed)
+        self.init_generator = torch.Generator().manual_seed(seed if init_seed is None else init_seed)
         structure = replace(STRUCTURE_FIELD, hidden_width=self.config.structure_width,
                             encoding_scale=self.config.structure_encoding_scale)
         sdf = self.config.structure_sdf

@@ -201,6 +201,28 @@ def test_an_unknown_global_form_is_refused(tmp_path):
         Method("m", "M", "d", global_map=True, global_form="x")
 
 
+def test_a_study_budget_reaches_the_published_map_and_is_refused_for_any_other(tmp_path):
+    from openmulti_env.presets import get_preset
+    from openmulti_env.runs.run import map_structure, run
+    from openmulti_env.world import World
+
+    preset = get_preset("tiny")
+    world = World.build("tiny", seed=0, config=preset.world_config(1))
+    try:
+        longer = SdfConfig(iterations_after=2000)
+        mapping, info = map_structure(world, preset, True, 256, published=True, sdf=longer)
+        assert mapping.iterations_after_stream == 2000 and info["iterations_after"] == 2000
+        default, info = map_structure(world, preset, True, 256, published=True)
+        assert default.iterations_after_stream == 200 and info["iterations_after"] == 200
+    finally:
+        world.close()
+    for other in ({}, {"global_map": True}):
+        with pytest.raises(ValueError, match="published global map only"):
+            run("tiny", 1, "never", "tiny", 0, tmp_path, progress=False, sdf=longer, **other)
+    with pytest.raises(ValueError, match="global map only"):
+        run("tiny", 1, "never", "tiny", 0, tmp_path, progress=False, shared_global_init=False)
+
+
 def test_softplus_is_isdfs_with_exact_first_and_second_derivatives():
     from mapping.sdf_network import softplus
 
@@ -223,6 +245,10 @@ def test_a_published_row_is_keyed_on_macims_settings_and_other_rows_are_not():
     assert published["published_map"]["rays"] == 200 and published["published_map"]["iterations_first"] == 200
     assert "published_map" not in run_settings(RunSpec("macim_global_equal_compute", "room0", 0, 4), "fast", False, None)
     assert "published_map" not in run_settings(RunSpec("openmulti", "room0", 0, 4), "fast", False, None)
+    # every global row is keyed on whether its agents start alike; instance-level rows keep their keys
+    for method in ("macim_global", "dinerf_global_equal_compute", "openmulti_global"):
+        assert run_settings(RunSpec(method, "room0", 0, 4), "fast", False, None)["shared_global_init"] is True
+    assert "shared_global_init" not in run_settings(RunSpec("openmulti", "room0", 0, 4), "fast", False, None)
 
 
 def test_a_step_whose_rays_have_no_depth_trains_nothing_and_does_not_fail():

@@ -500,6 +500,26 @@ def test_a_global_map_covers_the_boxes_its_peers_mapped(tiny_world):
         assert np.all(bound.lo <= union_lo + 1e-6) and np.all(bound.hi >= union_hi - 1e-6)
 
 
+def test_a_global_maps_agents_start_from_one_network_and_instance_maps_from_their_own(tiny_world):
+    """MACIM deep-copies robot 0's map to every robot: consensus averages networks of one origin."""
+    from mapping.team.global_map import GLOBAL_INSTANCE_ID, scene_frame
+
+    def init_states(team):
+        return [m.mapper.init_generator.get_state() for m in team.members]
+
+    frame = scene_frame(tiny_world.scene.size_m)
+    shared, _ = _tiny_team(tiny_world, global_map=True, global_frame=frame)
+    own, _ = _tiny_team(tiny_world, global_map=True, global_frame=frame, shared_global_init=False)
+    instance, _ = _tiny_team(tiny_world)
+    assert torch.equal(*init_states(shared))
+    assert not torch.equal(*init_states(own)) and not torch.equal(*init_states(instance))
+    assert torch.equal(init_states(shared)[0], init_states(own)[0])  # agent 0's draw is as before
+    shared.round(RoundPlan.never(2))  # each agent's first frame draws the scene network, then trains it
+    rows = [m.mapper.slots[GLOBAL_INSTANCE_ID].row for m in shared.members]
+    assert rows[0] == rows[1]
+    assert torch.equal(*init_states(shared))  # both drew the same network from the same state
+
+
 class _ShortStream(_CountingStream):
     """The first ``n`` frames of a stream: a recording shorter than the preset's path."""
 

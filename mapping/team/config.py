@@ -135,6 +135,12 @@ class TeamConfig:
     global_map: bool = False
     """One network for the whole scene (``mapping.team.global_map``) instead of one per instance: the
     global baselines. Set ``mapping.global_frame`` to the scene box with it."""
+    shared_global_init: bool = True
+    """With ``global_map``, every agent's network starts from the same parameters (agent 0's), as MACIM
+    deep-copies robot 0's map to every robot and DiNNO starts every node from one base model: eq. 12 and
+    DiNNO average networks of one origin. False: each agent draws its own (the rows made before
+    2026-12-05). Instance-level maps keep one draw per agent: an agent draws an instance's network when it
+    first sees the instance."""
     min_keyframes: int = 0
     """Keyframes each agent's map takes at least from its stream: a stream shorter than a full path of the
     preset takes one every ``len(stream) // min_keyframes`` frames (down to every frame) instead of every

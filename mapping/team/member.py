@@ -140,7 +140,7 @@ class TeamMember(StreamReader, Outbox, Inbox, Agreement):
     """Agent ``index`` of a team (see the module docstring for the round's calls)."""
 
     def __init__(self, index: int, stream: AgentStream, config: TeamConfig, vocabulary: Vocabulary, seed: int,
-                 device: str = "auto"):
+                 device: str = "auto", init_seed: int | None = None):
         self.index, self.stream, self.config, self.vocabulary = index, stream, config, vocabulary
         self._labels: dict[int, str] = {}
         mapping = config.mapping
@@ -148,7 +148,7 @@ class TeamMember(StreamReader, Outbox, Inbox, Agreement):
             mapping = replace(mapping, keyframe_every=every)  # a short stream: keyframes more often
         self.mapper = MappingAgent(mapping, is_structure=StructureTest(self._labels, vocabulary.structure,
                                                                        config.global_map),
-                                   device=device, seed=seed, agent_index=index)
+                                   device=device, seed=seed, agent_index=index, init_seed=init_seed)
         self.fusion = OnlineFusion(config.fusion)
         self.next_frame = 0
         self.max_frame_read = -1

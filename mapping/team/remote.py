@@ -74,13 +74,13 @@ class MemberProcess:
     """The body of one agent's actor: a ``TeamMember`` and the calls ``RemoteMember`` forwards to it."""
 
     def __init__(self, index: int, frames: int, config: TeamConfig, vocabulary: Vocabulary, seed: int,
-                 device: str, threads: int | None = None):
+                 device: str, threads: int | None = None, init_seed: int | None = None):
         if threads:
             import torch  # noqa: PLC0415
 
             torch.set_num_threads(threads)
         self.frames = HandedFrames(frames)
-        self.member = TeamMember(index, self.frames, config, vocabulary, seed=seed, device=device)
+        self.member = TeamMember(index, self.frames, config, vocabulary, seed=seed, device=device, init_seed=init_seed)
 
     def local_round(self, read: tuple[list, float]) -> LocalReport:
         self.frames.hand(self.member.next_frame, views_of([frame for frame, _ in read[0]]))
@@ -193,14 +193,14 @@ class RemoteMember(StreamReader):
     team's worker threads call several members at once). The stream and its read position stay here."""
 
     def __init__(self, index: int, stream: AgentStream, config: TeamConfig, vocabulary: Vocabulary, seed: int,
-                 placement: MemberPlacement = MemberPlacement("cpu", 1.0, 0.0)):
+                 placement: MemberPlacement = MemberPlacement("cpu", 1.0, 0.0), init_seed: int | None = None):
         import ray  # noqa: PLC0415
 
         self._ray = ray
         self.index, self.stream, self.config = index, stream, config
         self.next_frame = 0
         self.actor = ray.remote(MemberProcess).options(num_cpus=placement.num_cpus, num_gpus=placement.num_gpus).remote(
-            index, len(stream), config, vocabulary, seed, placement.device, max(1, int(placement.num_cpus)))
+            index, len(stream), config, vocabulary, seed, placement.device, max(1, int(placement.num_cpus)), init_seed)
 
     def _call(self, method: str, *args):
         return self._ray.get(getattr(self.actor, method).remote(*args))

@@ -125,14 +125,16 @@ class Team:
         self.workers = len(streams) if processes else min(workers, len(streams))
         self._pool = None
         self.config, self.seed = config, seed
+        # a global map: every agent's network starts as agent 0's (MACIM deep-copies robot 0's map)
+        init_seed = seed * 100 if config.global_map and config.shared_global_init else None
         if processes == "ray":
             from mapping.team.remote import RemoteMember, start_member_processes  # noqa: PLC0415
 
             placement = start_member_processes(len(streams), device)
-            self.members = [RemoteMember(i, s, config, vocabulary, seed=seed * 100 + i, placement=placement)
-                            for i, s in enumerate(streams)]
+            self.members = [RemoteMember(i, s, config, vocabulary, seed=seed * 100 + i, placement=placement,
+                                         init_seed=init_seed) for i, s in enumerate(streams)]
         else:
-            self.members = [TeamMember(i, s, config, vocabulary, seed=seed * 100 + i, device=device)
+            self.members = [TeamMember(i, s, config, vocabulary, seed=seed * 100 + i, device=device, init_seed=init_seed)
                             for i, s in enumerate(streams)]
         self.channel_config = channel
         self.channel = Channel(len(streams), channel.success_probability, channel.budget_bytes,

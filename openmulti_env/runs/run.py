@@ -46,7 +46,8 @@ def run(scene: str, agents: int, policy: str, preset: str, seed: int, out: Path,
         global_encoding_scale: float = GLOBAL_ENCODING_SCALE, global_form: str = "equal_compute",
         share_point_clouds: bool = False, three_cullings: bool = False, plots: bool = True, workers: int | None = None,
         missing_edges: str = "skip", processes: str | None = None, holdout_every: int | None = None,
-        learner: str = "per_agent", evaluate: bool = True) -> dict:
+        learner: str = "per_agent", evaluate: bool = True, sdf: SdfConfig | None = None,
+        shared_global_init: bool = True) -> dict:
     """A team run on the simulated ``scene``; returns the metrics written to ``out/metrics.json``.
 
     Args:
@@ -77,6 +78,10 @@ def run(scene: str, agents: int, policy: str, preset: str, seed: int, out: Path,
         global_form: the global map's form: ``equal_compute`` (above) or ``published`` (MACIM's scene SDF,
             samples, losses, iteration budget and rho 0.3; ``global_width`` and ``global_encoding_scale``
             are then MACIM's).
+        sdf: the published form's settings (None: MACIM's, ``SdfConfig()``), e.g. another iteration budget
+            for a study (benchmarks/study_global_budget.py); refused for any other map.
+        shared_global_init: a global map's agents start from one network (``TeamConfig.shared_global_init``;
+            False: each its own draw, as before 2026-12-05); refused without ``global_map``.
         share_point_clouds: "send parameters" links carry the observed points instead (Table VI).
         three_cullings: also score every map NICE-SLAM-culled and unculled (``mapping.pipeline.scoring``).
         plots: write the pictures (the experiments skip them: they cost seconds per run).
@@ -98,21 +103,32 @@ def run(scene: str, agents: int, policy: str, preset: str, seed: int, out: Path,
                 "float16": float16, "changed_only": changed_only,
                 **({"missing_edges": missing_edges} if consistency in ("dinno", "dsgd") else {})}
     published = global_map and global_form == "published"
+    if sdf is not None and not published:
+        raise ValueError("sdf settings apply to the published global map only (global_map=True, "
+                         "global_form='published')")
+    if not shared_global_init and not global_map:
+        raise ValueError("shared_global_init=False applies to a global map only (global_map=True)")
     if published:
-        global_width = SdfConfig().width
+        global_width = (sdf or SdfConfig()).width
     if global_map or share_point_clouds or three_cullings:  # older runs' settings stay as they were
         settings.update({"global_map": global_map, "global_width": global_width,
                          **({"global_encoding_scale": global_encoding_scale} if global_map and not published else {}),
                          **({"global_form": global_form} if published else {}),
                          "share_point_clouds": share_point_clouds, "three_cullings": three_cullings})
+    if sdf is not None and sdf != SdfConfig():  # MACIM's own settings leave the record as it was
+        settings["sdf"] = asdict(sdf)
+    if not shared_global_init:
+        settings["shared_global_init"] = False
     print(f"[openmulti] world {world.scene.name}: {len(world.scene.instances)} instances, "
           f"{world.num_agents} agent(s), {sum(len(p) for p in world.agent_poses)} frames")
     source = SimulatedSource(world, seed, shared_text_encoder(name=chosen.text_encoder), image_encoder,
                              segmentation_errors)
-    mapping, map_info = map_structure(world, chosen, global_map, global_width, global_encoding_scale, published)
+    mapping, map_info = map_structure(world, chosen, global_map, global_width, global_encoding_scale, published,
+                                      sdf)
     team = run_team_config(chosen, alignment, consistency, cross_rendering, float16, changed_only, mapping=mapping,
                            global_map=global_map, share_point_clouds=share_point_clouds, missing_edges=missing_edges,
                            holdout_every=holdout_every, rho=MACIM_RHO if published else None)
+    team = replace(team, shared_global_init=shared_global_init)
     errors = SegmentationErrorConfig() if segmentation_errors else SegmentationErrorConfig.none()
     record = SourceRecord(settings, {"map": map_info}, described={"error_rates": asdict(errors)})
     config = RunConfig(Path(out), team, team_channel(scripted, comm_budget_mb), seed=seed, device=device,
@@ -281,15 +297,16 @@ def run_team_config(preset: Preset, alignment: str, consistency: str, cross_rend
 
 
 def map_structure(world: World, preset: Preset, global_map: bool, width: int,
-                  encoding_scale: float = GLOBAL_ENCODING_SCALE, published: bool = False) -> tuple[MappingConfig, dict]:
+                  encoding_scale: float = GLOBAL_ENCODING_SCALE, published: bool = False,
+                  sdf: SdfConfig | None = None) -> tuple[MappingConfig, dict]:
     """The mapper settings and a description of the map (widths, rays per step) for the table.
 
     A global map gets the scene box as its frame and the rays per step that buy the per-step MLP
     FLOPs of an instance-level map of this scene's instances (``global_rays_for``), or, ``published``,
-    MACIM's scene SDF with its own budget (``published_mapping``)."""
+    MACIM's scene SDF with its own budget (``published_mapping``; ``sdf``: other settings than MACIM's)."""
     mapping = preset.mapping
     if global_map and published:
-        sdf = SdfConfig()
+        sdf = sdf or SdfConfig()
         return published_mapping(mapping, scene_frame(world.scene.size_m), sdf), {
             "kind": "global", "form": "published", "network": "MACIM scene SDF", "width": sdf.width,
             "rays_per_step": sdf.rays, "samples_per_ray": sdf.n_stratified + sdf.n_surface,

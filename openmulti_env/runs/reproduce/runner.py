@@ -41,7 +41,19 @@ def run_settings(spec: RunSpec, preset: str, three_cullings: bool, max_rounds: i
     return {"method": spec.method, "scene": spec.scene, "seed": spec.seed, "agents": spec.agents,
             "success_rate": spec.success_rate, "preset": preset, "policy": spec.policy,
             "options": METHODS[spec.method].run_options(), "three_cullings": three_cullings, "max_rounds": max_rounds,
-            "defaults": library_defaults(preset), **policy_identity(spec.policy), **published_map_identity(spec.method)}
+            "defaults": library_defaults(preset), **policy_identity(spec.policy), **published_map_identity(spec.method),
+            **global_init_identity(spec.method)}
+
+
+def global_init_identity(method: str) -> dict:
+    """For a global baseline, whether its agents' networks start alike (``TeamConfig.shared_global_init``):
+    the rows made before it existed (each agent its own draw) are redone. Instance-level rows carry
+    nothing of it, so their keys stay as they were."""
+    if not METHODS[method].global_map:
+        return {}
+    from mapping.team import TeamConfig  # noqa: PLC0415
+
+    return {"shared_global_init": TeamConfig().shared_global_init}
 
 
 def published_map_identity(method: str) -> dict:
