@@ -57,7 +57,7 @@ def run_variant(variant: Variant, args: argparse.Namespace) -> dict:
     metrics = run(args.scene, args.agents, args.policy, args.preset, args.seed, args.out / "runs" / variant.name,
                   global_map=published, global_form="published" if published else "equal_compute",
                   sdf=SdfConfig(iterations_after=variant.after) if published else None,
-                  three_cullings=True, workers=1, threads=1,
+                  cross_rendering=not published, three_cullings=True, workers=1, threads=1,
                   shared_global_init=not (published and args.own_init))
     mean = metrics["mean"]
     iterations = None

@@ -189,6 +189,8 @@ def test_the_published_form_sets_macims_budget_and_rho():
     assert team.consistency.rho == 0.3 and team.global_map
     # a full path gets exactly 3 iterations per frame before the 200 after it
     assert team.min_local_steps == preset.frames_per_agent * 3
+    with pytest.raises(ValueError, match="Cross Rendering .* MACIM's scene SDF"):
+        run_team_config(preset, "paper", "consensus", True, False, None, mapping=mapping, global_map=True)
 
 
 def test_an_unknown_global_form_is_refused(tmp_path):

@@ -164,6 +164,10 @@ class TeamConfig:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
         if self.holdout_every is not None and self.holdout_every < 2:
             raise ValueError(f"holdout_every must be >= 2 (or None), got {self.holdout_every}")
+        if self.mapping.structure_sdf is not None and self.consistency.cross_rendering:
+            raise ValueError("Cross Rendering (eq. 13) renders the peers' occupancy fields; MACIM's scene SDF "
+                             "(mapping.structure_sdf, the published global form) has none: set "
+                             "consistency.cross_rendering=False (MACIM and Di-NeRF* use none)")
 
     def keyframe_every(self, stream_length: int) -> int:
         """The keyframe interval of an agent whose stream has ``stream_length`` frames (``min_keyframes``)."""
