@@ -1,16 +1,20 @@
-"""Is MACIM's published map weak at `fast` for lack of iterations? (issue: fair baselines, docs/baselines.md)
+"""Why is MACIM's published map weak here? Iterations, consensus, initialisation (issue: fair baselines).
 
 At MACIM's per-frame budget (200 iterations on the first frame, 3 on each after it, 200 after the last)
-the published scene SDF reaches a completion ratio of 17-18 % on room0 where the paper reports 72 %; on
-`tiny` the same network and losses reach 96 % with 1,000 iterations after the stream. This study measures
-the same at `fast`: one agent walks the whole scene with no one to talk to (so consensus plays no part) and
-maps it three ways, the instance-level map (``instance``), MACIM's SDF at its published budget
+the published scene SDF of a 4-agent team reached a completion ratio of 17-18 % on room0 at `fast`, where
+the paper reports 72 %. This study maps one scene three ways per call, all with the same agents, paths and
+schedule: the instance-level map (``instance``, OpenMulti's), MACIM's SDF at its published budget
 (``sdf_after_200``) and MACIM's SDF with more iterations after the last frame (``sdf_after_N``, ``--after``).
+``--policy never`` (the default) leaves each agent alone, so consensus plays no part; ``--policy always``
+adds eq. 12 at MACIM's rho every iteration, as in the tables; ``--own-init`` gives each agent's scene
+network its own initial draw (the rows before 2026-12-05) instead of agent 0's copied to all (MACIM's).
+The SDF runs without Cross Rendering (MACIM has none).
 
 Rows go to ``OUT/rows.json`` as each run finishes (atomically); a second call with the same ``--out``
 skips finished rows and resumes an unfinished run from its checkpoint. Each run's pictures are in
-``OUT/runs/<variant>/plots``. Run (about 15 + 15 + 45 minutes for ``--after 2000`` alone on one core here):
-`.venv/bin/python benchmarks/study_global_budget.py --scene room0 --preset fast --after 2000 --out runs/study_global_budget`
+``OUT/runs/<variant>/plots``. Run (on `tiny` a few minutes per variant; at `fast` about an hour per SDF
+variant of 4 agents on one core):
+`.venv/bin/python benchmarks/study_global_budget.py --scene room0 --preset fast --agents 4 --policy always --after 2000 --out runs/study_global_budget`
 """
 
 from __future__ import annotations
