@@ -518,6 +518,11 @@ def test_a_global_maps_agents_start_from_one_network_and_instance_maps_from_thei
     rows = [m.mapper.slots[GLOBAL_INSTANCE_ID].row for m in shared.members]
     assert rows[0] == rows[1]
     assert torch.equal(*init_states(shared))  # both drew the same network from the same state
+    from mapping.team.remote import MemberProcess  # what a Ray actor holds: the seed travels there too
+
+    remote = [MemberProcess(i, 24, shared.config, shared.members[0].vocabulary, 100 + i, "cpu", None, 0)
+              for i in range(2)]
+    assert torch.equal(*[p.member.mapper.init_generator.get_state() for p in remote])
 
 
 class _ShortStream(_CountingStream):
