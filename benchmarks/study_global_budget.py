@@ -69,7 +69,8 @@ def run_variant(variant: Variant, args: argparse.Namespace) -> dict:
         sdf = SdfConfig(iterations_after=variant.after)
         iterations = sdf.iterations_first + sdf.iterations_per_frame * args.frames + sdf.iterations_after
     return {"variant": variant.name, "scene": args.scene, "preset": args.preset, "seed": args.seed,
-            "agents": args.agents, "policy": args.policy, "own_init": bool(published and args.own_init), "iterations_after": variant.after, "iterations_per_agent": iterations,
+            "agents": args.agents, "policy": args.policy, "own_init": bool(published and args.own_init),
+            "iterations_after": variant.after, "iterations_per_agent": iterations,
             **{k: mean.get(k) for k in ("acc_cm", "comp_cm", "comp_ratio", "comp_ratio_nice", "depth_median_cm",
                                          "depth_off_pct")},
             "wall_s": round(time.time() - start, 1)}
