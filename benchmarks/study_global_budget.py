@@ -21,11 +21,11 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from mapping.pipeline.records import write_json_atomic
 from mapping.sdf_loss import SdfConfig
 from openmulti_env.runs.run import run
 
@@ -47,27 +47,18 @@ def variants(after: list[int]) -> list[Variant]:
             + [Variant(f"sdf_after_{a}", a) for a in longer])
 
 
-def write_rows(path: Path, rows: list[dict]) -> None:
-    """Atomically: a crash mid-write leaves the previous file."""
-    tmp = path.with_suffix(".tmp")
-    tmp.write_text(json.dumps(rows, indent=1))
-    os.replace(tmp, path)
-
-
 def run_variant(variant: Variant, args: argparse.Namespace) -> dict:
     """One run; the row: the mean of the agents' scores, the budget and the wall time."""
     start = time.time()
     published = variant.after is not None
+    sdf = SdfConfig(iterations_after=variant.after) if published else None
     metrics = run(args.scene, args.agents, args.policy, args.preset, args.seed, args.out / "runs" / variant.name,
                   global_map=published, global_form="published" if published else "equal_compute",
-                  sdf=SdfConfig(iterations_after=variant.after) if published else None,
+                  sdf=sdf,
                   cross_rendering=not published, three_cullings=True, workers=1, threads=1,
                   shared_global_init=not (published and args.own_init))
     mean = metrics["mean"]
-    iterations = None
-    if published:
-        sdf = SdfConfig(iterations_after=variant.after)
-        iterations = sdf.iterations_first + sdf.iterations_per_frame * args.frames + sdf.iterations_after
+    iterations = sdf and sdf.iterations_first + sdf.iterations_per_frame * args.frames + sdf.iterations_after
     return {"variant": variant.name, "scene": args.scene, "preset": args.preset, "seed": args.seed,
             "agents": args.agents, "policy": args.policy, "own_init": bool(published and args.own_init),
             "iterations_after": variant.after, "iterations_per_agent": iterations,
@@ -117,7 +108,7 @@ def main(argv: list[str] | None = None) -> None:
             continue
         print(f"[study_global_budget] {variant.name}", flush=True)
         rows.append(run_variant(variant, args))
-        write_rows(path, rows)
+        write_json_atomic(path, rows)
     text = table(rows)
     (args.out / "table.md").write_text(text + "\n")
     print(text)
