@@ -6,7 +6,8 @@ the paper reports 72 %. This study maps one scene three ways per call, all with 
 schedule: the instance-level map (``instance``, OpenMulti's), MACIM's SDF at its published budget
 (``sdf_after_200``) and MACIM's SDF with more iterations after the last frame (``sdf_after_N``, ``--after``).
 ``--policy never`` (the default) leaves each agent alone, so consensus plays no part; ``--policy always``
-adds eq. 12 at MACIM's rho every iteration, as in the tables; ``--own-init`` gives each agent's scene
+adds eq. 12 at MACIM's rho every iteration, as in the tables (``--consistency dinno``: DiNNO's ADMM instead,
+Di-NeRF*'s form); ``--own-init`` gives each agent's scene
 network its own initial draw (the rows before 2026-12-05) instead of agent 0's copied to all (MACIM's).
 The SDF runs without Cross Rendering (MACIM has none).
 
@@ -53,14 +54,14 @@ def run_variant(variant: Variant, args: argparse.Namespace) -> dict:
     published = variant.after is not None
     sdf = SdfConfig(iterations_after=variant.after) if published else None
     metrics = run(args.scene, args.agents, args.policy, args.preset, args.seed, args.out / "runs" / variant.name,
-                  global_map=published, global_form="published" if published else "equal_compute",
+                  consistency=args.consistency, global_map=published, global_form="published" if published else "equal_compute",
                   sdf=sdf,
-                  cross_rendering=not published, three_cullings=True, workers=1, threads=1,
+                  cross_rendering=not published and args.consistency == "consensus", three_cullings=True, workers=1, threads=1,
                   shared_global_init=not (published and args.own_init))
     mean = metrics["mean"]
     iterations = sdf and sdf.iterations_first + sdf.iterations_per_frame * args.frames + sdf.iterations_after
     return {"variant": variant.name, "scene": args.scene, "preset": args.preset, "seed": args.seed,
-            "agents": args.agents, "policy": args.policy, "own_init": bool(published and args.own_init),
+            "agents": args.agents, "policy": args.policy, "consistency": args.consistency, "own_init": bool(published and args.own_init),
             "iterations_after": variant.after, "iterations_per_agent": iterations,
             **{k: mean.get(k) for k in ("acc_cm", "comp_cm", "comp_ratio", "comp_ratio_nice", "depth_median_cm",
                                          "depth_off_pct")},
@@ -87,6 +88,9 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--policy", default="never",
                         help="the team's schedule (default never: each agent alone, so consensus plays no part; "
                              "always: eq. 12 at MACIM's rho every iteration, as in the table)")
+    parser.add_argument("--consistency", choices=("consensus", "dinno"), default="consensus",
+                        help="parameter consistency under --policy always: consensus (eq. 12, MACIM's) or dinno "
+                             "(DiNNO's ADMM, Di-NeRF*'s)")
     parser.add_argument("--own-init", action="store_true",
                         help="each agent's scene network its own draw (the rows before 2026-12-05) instead of "
                              "agent 0's copied to every agent (MACIM's)")

@@ -202,6 +202,19 @@ def test_methods_filter_runs_only_those_and_names_the_tables_methods(tmp_path):
     with pytest.raises(ValueError, match="not in table 'comm-failure'.*dinerf_global, dinerf_global_stale, openmulti"):
         reproduce("comm-failure", ["tiny"], [0], "tiny", tmp_path, run_fn=_fake_run([]), methods=["single"])
 
+
+def test_success_rates_filter_runs_only_that_column_and_names_the_tables_rates(tmp_path):
+    calls = []
+    written = reproduce("comm-failure", ["tiny"], [0], "tiny", tmp_path, run_fn=_fake_run(calls), progress=False,
+                        methods=["openmulti", "dinerf_global"], success_rates=[0.2])
+    assert sorted((r["method"], r["success_rate"]) for r in written["comm-failure"]) == [
+        ("dinerf_global", 0.2), ("openmulti", 0.2)]
+    assert len(calls) == 2
+    with pytest.raises(ValueError, match=r"link success rates \[0.3\] are not in table 'comm-failure'.*0.2, 0.5, 0.8, 1"):
+        reproduce("comm-failure", ["tiny"], [0], "tiny", tmp_path, run_fn=_fake_run([]), success_rates=[0.3])
+    with pytest.raises(ValueError, match="link success rates .* not in table 'geometric'.*its rates: 1$"):
+        reproduce("geometric", ["tiny"], [0], "tiny", tmp_path, run_fn=_fake_run([]), success_rates=[0.5])
+
 # ---- each culling on a hand-made mesh -------------------------------------------------------------
 def _two_walls():
     """A front wall at z = 2 and a second wall behind it at z = 3 (both 2 x 2 m, facing -z), and a

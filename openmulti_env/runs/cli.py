@@ -160,7 +160,8 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
 
     written = reproduce(args.table, args.scenes, args.seeds, args.preset, args.out, agents=args.agents,
                         threads=args.threads, device=args.device, three_cullings=not args.free_space_only,
-                        methods=args.methods, run_missing=not args.tables_only, ray_address=args.ray)
+                        methods=args.methods, run_missing=not args.tables_only, ray_address=args.ray,
+                        success_rates=args.success_rates)
     for name, rows in written.items():
         if rows:
             print(Path(args.out, f"{name}.md").read_text())
@@ -307,6 +308,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="score with today's free-space culling only (skip the NICE-SLAM and unculled scores)")
     p.add_argument("--methods", nargs="+", metavar="M",
                    help="run only these of the table's methods (two processes can share --out this way)")
+    p.add_argument("--success-rates", nargs="+", type=float, metavar="P",
+                   help="run only the runs at these link success rates (comm-failure: 1 0.8 0.5 0.2; e.g. 0.2 "
+                        "first, the column Table V's ordering is decided on)")
     p.add_argument("--tables-only", action="store_true",
                    help="make no run: write the tables from the runs already finished (missing ones are named)")
     p.set_defaults(func=cmd_reproduce)

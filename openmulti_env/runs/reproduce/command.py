@@ -20,7 +20,7 @@ def reproduce(table: str, scenes: list[str] | None, seeds: list[int], preset: st
               threads: int | None = 1, device: str = "cpu", three_cullings: bool = True,
               max_rounds: int | None = None, progress: bool = True, run_fn=None,
               methods: list[str] | None = None, run_missing: bool = True,
-              ray_address: str | None = None) -> dict[str, list[dict]]:
+              ray_address: str | None = None, success_rates: list[float] | None = None) -> dict[str, list[dict]]:
     """Run ``table`` (one of ``TABLES`` or ``all``) and write ``OUT/T.json``, ``.md`` and ``.png``.
 
     Args:
@@ -28,6 +28,8 @@ def reproduce(table: str, scenes: list[str] | None, seeds: list[int], preset: st
             sharing ``out``: rows are keyed, so each process makes its own and both tables read all).
         run_missing: False writes the tables from the runs already finished and makes none.
         ray_address: run the missing runs as Ray tasks (``local`` or a cluster's address; ``run_table``).
+        success_rates: run only the runs at these link success rates (e.g. Table V's 20 % column first, the
+            column its ordering is decided on); the tables are written from every finished run.
 
     Returns the rows of each table written. Unknown table, method or scene names raise ValueError
     listing the known ones, before any run starts.
@@ -43,6 +45,14 @@ def reproduce(table: str, scenes: list[str] | None, seeds: list[int], preset: st
         if unknown:
             raise ValueError(f"methods {unknown} are not in table {table!r}; its methods: {', '.join(offered)}")
         specs = {name: [s for s in runs if (s.schedule or s.method) in methods] for name, runs in specs.items()}
+        names = [name for name in names if specs[name]]
+    if success_rates is not None:
+        offered_rates = sorted({s.success_rate for runs in specs.values() for s in runs})
+        unknown_rates = [r for r in success_rates if r not in offered_rates]
+        if unknown_rates:
+            raise ValueError(f"link success rates {unknown_rates} are not in table {table!r}; its rates: "
+                             f"{', '.join(f'{r:g}' for r in offered_rates)}")
+        specs = {name: [s for s in runs if s.success_rate in success_rates] for name, runs in specs.items()}
         names = [name for name in names if specs[name]]
     out = Path(out)
     start = time.perf_counter()
