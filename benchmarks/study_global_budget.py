@@ -9,7 +9,7 @@ schedule: the instance-level map (``instance``, OpenMulti's), MACIM's SDF at its
 adds eq. 12 at MACIM's rho every iteration, as in the tables (``--consistency dinno``: DiNNO's ADMM instead,
 Di-NeRF*'s form); ``--own-init`` gives each agent's scene
 network its own initial draw (the rows before 2026-12-05) instead of agent 0's copied to all (MACIM's).
-The SDF runs without Cross Rendering (MACIM has none).
+The SDF runs without Cross Rendering (MACIM has none), and so does every DiNNO run (DiNNO_I has none).
 
 Rows go to ``OUT/rows.json`` as each run finishes (atomically); a second call with the same ``--out``
 skips finished rows and resumes an unfinished run from its checkpoint. Each run's pictures are in
