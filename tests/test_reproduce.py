@@ -214,6 +214,9 @@ def test_success_rates_filter_runs_only_that_column_and_names_the_tables_rates(t
         reproduce("comm-failure", ["tiny"], [0], "tiny", tmp_path, run_fn=_fake_run([]), success_rates=[0.3])
     with pytest.raises(ValueError, match="link success rates .* not in table 'geometric'.*its rates: 1$"):
         reproduce("geometric", ["tiny"], [0], "tiny", tmp_path, run_fn=_fake_run([]), success_rates=[0.5])
+    from openmulti_env.runs.cli import main
+
+    assert main(["reproduce", "--table", "comm-failure", "--success-rates", "0.3", "--out", str(tmp_path)]) == 2
 
 # ---- each culling on a hand-made mesh -------------------------------------------------------------
 def _two_walls():
