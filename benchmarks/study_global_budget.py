@@ -54,14 +54,15 @@ def run_variant(variant: Variant, args: argparse.Namespace) -> dict:
     published = variant.after is not None
     sdf = SdfConfig(iterations_after=variant.after) if published else None
     metrics = run(args.scene, args.agents, args.policy, args.preset, args.seed, args.out / "runs" / variant.name,
-                  consistency=args.consistency, global_map=published, global_form="published" if published else "equal_compute",
-                  sdf=sdf,
-                  cross_rendering=not published and args.consistency == "consensus", three_cullings=True, workers=1, threads=1,
-                  shared_global_init=not (published and args.own_init))
+                  consistency=args.consistency, global_map=published,
+                  global_form="published" if published else "equal_compute", sdf=sdf,
+                  cross_rendering=not published and args.consistency == "consensus", three_cullings=True,
+                  workers=1, threads=1, shared_global_init=not (published and args.own_init))
     mean = metrics["mean"]
     iterations = sdf and sdf.iterations_first + sdf.iterations_per_frame * args.frames + sdf.iterations_after
     return {"variant": variant.name, "scene": args.scene, "preset": args.preset, "seed": args.seed,
-            "agents": args.agents, "policy": args.policy, "consistency": args.consistency, "own_init": bool(published and args.own_init),
+            "agents": args.agents, "policy": args.policy, "consistency": args.consistency,
+            "own_init": bool(published and args.own_init),
             "iterations_after": variant.after, "iterations_per_agent": iterations,
             **{k: mean.get(k) for k in ("acc_cm", "comp_cm", "comp_ratio", "comp_ratio_nice", "depth_median_cm",
                                          "depth_off_pct")},

@@ -29,7 +29,8 @@ def reproduce(table: str, scenes: list[str] | None, seeds: list[int], preset: st
         run_missing: False writes the tables from the runs already finished and makes none.
         ray_address: run the missing runs as Ray tasks (``local`` or a cluster's address; ``run_table``).
         success_rates: run only the runs at these link success rates (e.g. Table V's 20 % column first, the
-            column its ordering is decided on); the tables are written from every finished run.
+            column its ordering is decided on); like ``methods``, the tables then hold those runs only
+            (``run_missing=False`` without the filter writes the whole table from every finished run).
 
     Returns the rows of each table written. Unknown table, method or scene names raise ValueError
     listing the known ones, before any run starts.
