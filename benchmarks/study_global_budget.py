@@ -59,7 +59,7 @@ def run_variant(variant: Variant, args: argparse.Namespace) -> dict:
                   cross_rendering=not published and args.consistency == "consensus", three_cullings=True,
                   workers=1, threads=1, shared_global_init=not (published and args.own_init))
     mean = metrics["mean"]
-    iterations = sdf and sdf.iterations_first + sdf.iterations_per_frame * args.frames + sdf.iterations_after
+    iterations = (sdf.iterations_first + sdf.iterations_per_frame * args.frames + sdf.iterations_after) if sdf else None
     return {"variant": variant.name, "scene": args.scene, "preset": args.preset, "seed": args.seed,
             "agents": args.agents, "policy": args.policy, "consistency": args.consistency,
             "own_init": bool(published and args.own_init),

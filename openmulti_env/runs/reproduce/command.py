@@ -8,10 +8,12 @@ from __future__ import annotations
 
 import platform
 import time
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 from openmulti_env.runs.reproduce.runner import check_scenes, run_table
-from openmulti_env.runs.reproduce.tables import TABLES, TRADEOFF, TRADEOFF_SCENES, table_runs
+from openmulti_env.runs.reproduce.tables import TABLES, TRADEOFF, TRADEOFF_SCENES, RunSpec, table_runs
 from openmulti_env.runs.reproduce.tradeoff import write_tradeoff
 from openmulti_env.runs.reproduce.writers import write_table
 
@@ -41,19 +43,11 @@ def reproduce(table: str, scenes: list[str] | None, seeds: list[int], preset: st
     specs = {name: table_runs(name, scenes, seeds, agents) for name in names}  # checks the table names
     check_scenes(scenes)
     if methods is not None:
-        offered = sorted({s.schedule or s.method for runs in specs.values() for s in runs})
-        unknown = [m for m in methods if m not in offered]
-        if unknown:
-            raise ValueError(f"methods {unknown} are not in table {table!r}; its methods: {', '.join(offered)}")
-        specs = {name: [s for s in runs if (s.schedule or s.method) in methods] for name, runs in specs.items()}
-        names = [name for name in names if specs[name]]
+        specs = _select(specs, table, "methods", methods, lambda s: s.schedule or s.method, str)
     if success_rates is not None:
-        offered_rates = sorted({s.success_rate for runs in specs.values() for s in runs})
-        unknown_rates = [r for r in success_rates if r not in offered_rates]
-        if unknown_rates:
-            raise ValueError(f"link success rates {unknown_rates} are not in table {table!r}; its rates: "
-                             f"{', '.join(f'{r:g}' for r in offered_rates)}")
-        specs = {name: [s for s in runs if s.success_rate in success_rates] for name, runs in specs.items()}
+        specs = _select(specs, table, "link success rates", success_rates, lambda s: s.success_rate,
+                        lambda r: f"{r:g}")
+    if methods is not None or success_rates is not None:
         names = [name for name in names if specs[name]]
     out = Path(out)
     start = time.perf_counter()
@@ -72,6 +66,17 @@ def reproduce(table: str, scenes: list[str] | None, seeds: list[int], preset: st
             write_table(out, name, rows, notes)
         written[name] = rows
     return written
+
+
+def _select(specs: dict[str, list[RunSpec]], table: str, what: str, wanted: list, key: Callable[[RunSpec], Any],
+            show: Callable[[Any], str]) -> dict[str, list[RunSpec]]:
+    """The runs whose ``key`` is among ``wanted`` (ValueError naming the unknown ones and the table's own)."""
+    offered = sorted({key(s) for runs in specs.values() for s in runs})
+    unknown = [w for w in wanted if w not in offered]
+    if unknown:
+        raise ValueError(f"{what} {unknown} are not in table {table!r}; its {what.split()[-1]}: "
+                         f"{', '.join(show(o) for o in offered)}")
+    return {name: [s for s in runs if key(s) in wanted] for name, runs in specs.items()}
 
 
 def _cores() -> int:
