@@ -4,6 +4,7 @@ each culling on a hand-made mesh."""
 from __future__ import annotations
 
 import json
+import threading
 
 import numpy as np
 import pytest
@@ -15,7 +16,7 @@ from mapping.sdf_loss import SdfConfig
 from mapping.team.global_map import GLOBAL_ENCODING_SCALE
 from openmulti_env.runs.reproduce.command import reproduce
 from openmulti_env.runs.reproduce.methods import METHODS, TABLE_I_METHODS, get_method
-from openmulti_env.runs.reproduce.runner import run_table
+from openmulti_env.runs.reproduce.runner import GridJob, make_row, run_claim, run_table, write_row
 from openmulti_env.runs.reproduce.tables import RunSpec, table_runs
 from openmulti_env.runs.reproduce.writers import markdown_table, mean_sd, write_table
 
@@ -95,6 +96,35 @@ def test_resume_skips_finished_runs_and_redoes_a_half_written_one(tmp_path):
     calls.clear()
     run_table(specs, "fast", tmp_path, run_fn=_fake_run(calls), progress=False)  # other settings: runs again
     assert len(calls) == len(specs)
+
+
+def test_processes_sharing_an_out_make_each_run_once(tmp_path):
+    """A run claimed by another process is skipped, then waited for and its row taken, not made twice."""
+    specs = table_runs("comm-failure", ["tiny"], [0])[:3]
+    first, calls, result = specs[0], [], {}
+    with run_claim(tmp_path, first.key("tiny"), wait=False) as mine:  # "another process" is making the first run
+        assert mine
+        worker = threading.Thread(target=lambda: result.update(
+            rows=run_table(specs, "tiny", tmp_path, run_fn=_fake_run(calls), progress=False)))
+        worker.start()
+        for _ in range(600):  # until it has made the two runs nobody holds
+            if len(calls) == 2:
+                break
+            worker.join(0.05)
+        assert len(calls) == 2 and worker.is_alive()  # it waits for the held one instead of making it
+        job = GridJob("tiny", tmp_path, run_fn=_fake_run([]))
+        elsewhere = {**make_row(first, job), "made": "elsewhere"}
+        write_row(first, job, elsewhere)
+    worker.join(30)
+    assert not worker.is_alive()
+    assert len(calls) == 2 and result["rows"][0] == elsewhere  # taken from the row file, not made again
+    assert [row["success_rate"] for row in result["rows"]] == [spec.success_rate for spec in specs]
+    calls.clear()  # a lock file left behind (its holder gone) blocks nothing
+    assert (tmp_path / "runs" / f"{first.key('tiny')}.lock").exists()
+    for row_file in (tmp_path / "rows").glob("*.json"):
+        row_file.unlink()
+    run_table(specs, "tiny", tmp_path, run_fn=_fake_run(calls), progress=False)
+    assert len(calls) == 3
 
 
 def test_a_row_made_under_other_library_defaults_is_redone(tmp_path, monkeypatch):

@@ -295,7 +295,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--preset", choices=RUN_PRESETS, default="fast", help="episode size of every run")
     p.add_argument("--agents", type=_agents, default=4, help="agents of the team methods (single_agent has 1)")
     p.add_argument("--out", default="runs/reproduce", metavar="DIR",
-                   help="folder of the tables, rows and runs (started again, finished runs are reused)")
+                   help="folder of the tables, rows and runs (started again, finished runs are reused; the same "
+                        "command started twice shares the grid, each run made once)")
     p.add_argument("--threads", type=int, default=1,
                    help="torch threads per run (runs go one at a time; with --ray, the CPUs each task asks for)")
     p.add_argument("--ray", nargs="?", const="local", metavar="ADDRESS",
@@ -307,7 +308,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--free-space-only", action="store_true",
                    help="score with today's free-space culling only (skip the NICE-SLAM and unculled scores)")
     p.add_argument("--methods", nargs="+", metavar="M",
-                   help="run only these of the table's methods (two processes can share --out this way)")
+                   help="run only these of the table's methods (tradeoff: these policies)")
     p.add_argument("--success-rates", nargs="+", type=float, metavar="P",
                    help="run only the runs at these link success rates (comm-failure: 1 0.8 0.5 0.2; e.g. 0.2 "
                         "first, the column Table V's ordering is decided on)")

@@ -5,15 +5,22 @@ from it) and, once finished, leaves its row in ``OUT/rows/<key>.json``, written 
 with the settings that made it. Started again, ``reproduce`` skips every run whose row file holds the
 same settings, resumes a run that was interrupted (its checkpoint), and redoes one whose row file is
 unreadable or was made with other settings. A tqdm bar counts the runs.
+
+Several processes can share one ``OUT`` (e.g. the same command started twice on one machine; across
+machines only on a file system whose ``flock`` works between them): each run is claimed with an
+exclusive lock on ``OUT/runs/<key>.lock`` while it is made, a process skips a run another holds and
+comes back to it at the end (waiting for the holder, then reading its row), and a lock dies with its
+holder, so a killed process leaves nothing stuck.
 """
 
 from __future__ import annotations
 
 import json
 import time
+from contextlib import contextmanager
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Callable
+from typing import Callable, Iterator
 
 from tqdm import tqdm
 
@@ -205,12 +212,55 @@ def run_table(specs: list[RunSpec], preset: str, out: Path, threads: int | None 
 
         run_on_ray(todo, job, finished, address=ray_address, done_before=len(specs) - len(todo), progress=progress)
         return rows
+    def claim_and_make(spec: RunSpec, wait: bool) -> bool:
+        """Make ``spec`` under its claim (or take the row another process finished); False: claimed elsewhere."""
+        with run_claim(out, spec.key(preset), wait=wait) as mine:
+            if not mine:
+                return False
+            made_elsewhere = load_row(out / "rows" / f"{spec.key(preset)}.json", run_settings(
+                spec, preset, three_cullings, max_rounds))
+            if made_elsewhere is not None:
+                rows[index[spec.key(preset)]] = made_elsewhere
+            else:
+                finished(spec, make_row(spec, job))
+            return True
+
     with tqdm(total=len(specs), initial=len(specs) - len(todo), desc="runs", unit="run", disable=not progress) as bar:
+        held_elsewhere = []
         for spec in todo:
             bar.set_postfix_str(spec.key(preset))
-            finished(spec, make_row(spec, job))
+            if claim_and_make(spec, wait=False):
+                bar.update(1)
+            else:
+                held_elsewhere.append(spec)
+        for spec in held_elsewhere:
+            bar.set_postfix_str(f"{spec.key(preset)} (waiting for the process that holds it)")
+            claim_and_make(spec, wait=True)
             bar.update(1)
     return rows
+
+
+@contextmanager
+def run_claim(out: Path, key: str, wait: bool) -> Iterator[bool]:
+    """Hold the exclusive lock ``OUT/runs/<key>.lock`` (``flock``: released when the holder exits or is
+    killed); yields False, holding nothing, when another process holds it and ``wait`` is False."""
+    try:
+        import fcntl  # noqa: PLC0415  (POSIX only; elsewhere every run is simply made)
+    except ImportError:
+        yield True
+        return
+    path = out / "runs" / f"{key}.lock"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path, "a") as handle:
+        try:
+            fcntl.flock(handle, fcntl.LOCK_EX | (0 if wait else fcntl.LOCK_NB))
+        except BlockingIOError:
+            yield False
+            return
+        try:
+            yield True
+        finally:
+            fcntl.flock(handle, fcntl.LOCK_UN)
 
 
 def _drop_bulky_files(run_dir: Path) -> None:
