@@ -212,6 +212,7 @@ def run_table(specs: list[RunSpec], preset: str, out: Path, threads: int | None 
 
         run_on_ray(todo, job, finished, address=ray_address, done_before=len(specs) - len(todo), progress=progress)
         return rows
+
     def claim_and_make(spec: RunSpec, wait: bool) -> bool:
         """Make ``spec`` under its claim (or take the row another process finished); False: claimed elsewhere."""
         with run_claim(out, spec.key(preset), wait=wait) as mine:
