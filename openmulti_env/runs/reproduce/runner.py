@@ -189,10 +189,10 @@ def run_table(specs: list[RunSpec], preset: str, out: Path, threads: int | None 
             one at a time here.
     """
     check_scenes(sorted({s.scene for s in specs}))
-    rows, todo = [], []
+    rows, todo, settings = [], [], {}
     for spec in specs:
-        settings = run_settings(spec, preset, three_cullings, max_rounds)
-        rows.append(load_row(out / "rows" / f"{spec.key(preset)}.json", settings))
+        settings[spec.key(preset)] = run_settings(spec, preset, three_cullings, max_rounds)
+        rows.append(load_row(out / "rows" / f"{spec.key(preset)}.json", settings[spec.key(preset)]))
         if rows[-1] is None:
             todo.append(spec)
     if not run_missing:
@@ -215,13 +215,13 @@ def run_table(specs: list[RunSpec], preset: str, out: Path, threads: int | None 
 
     def claim_and_make(spec: RunSpec, wait: bool) -> bool:
         """Make ``spec`` under its claim (or take the row another process finished); False: claimed elsewhere."""
-        with run_claim(out, spec.key(preset), wait=wait) as mine:
+        key = spec.key(preset)
+        with run_claim(out, key, wait=wait) as mine:
             if not mine:
                 return False
-            made_elsewhere = load_row(out / "rows" / f"{spec.key(preset)}.json", run_settings(
-                spec, preset, three_cullings, max_rounds))
+            made_elsewhere = load_row(out / "rows" / f"{key}.json", settings[key])
             if made_elsewhere is not None:
-                rows[index[spec.key(preset)]] = made_elsewhere
+                rows[index[key]] = made_elsewhere
             else:
                 finished(spec, make_row(spec, job))
             return True
