@@ -4,7 +4,7 @@ Prints (a) the GFLOP/s of a 2048 x 2048 float32 matmul (the machine's dense ceil
 bank (``InstanceFieldBank`` + ``StackedAdam``) at each N x P setting: step time, its split into
 forward / backward / Adam, and the achieved GFLOP/s (MLP FLOPs: 2 * in * out per layer per point,
 x3 for forward + backward) as a share of the matmul; (c) a Python loop over instances (separate vMAP
-modules with an AdamW each, as vMAP without vmap; and ``mapping.field_reference.looped_forward``) and
+modules with an AdamW each, as vMAP without vmap; and ``mapping.model.field_reference.looped_forward``) and
 the speed-up; plus torch.func ``vmap`` over stacked modules (forward + backward) for the design choice.
 
 All variants of a setting, the matmul included, are timed in interleaved rounds (one call of each per
@@ -30,11 +30,11 @@ import torch
 from torch import nn
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from mapping.encoding import COLOUR_INPUT_DIM, GEOMETRY_INPUT_DIM, encode_positions  # noqa: E402
-from mapping.field import FieldConfig, InstanceFieldBank  # noqa: E402
-from mapping.field_reference import looped_forward  # noqa: E402
-from mapping.instance_params import mlp_flops_per_point  # noqa: E402
-from mapping.optim import AdamConfig, StackedAdam  # noqa: E402
+from mapping.model.encoding import COLOUR_INPUT_DIM, GEOMETRY_INPUT_DIM, encode_positions  # noqa: E402
+from mapping.model.field import FieldConfig, InstanceFieldBank  # noqa: E402
+from mapping.model.field_reference import looped_forward  # noqa: E402
+from mapping.model.instance_params import mlp_flops_per_point  # noqa: E402
+from mapping.model.optim import AdamConfig, StackedAdam  # noqa: E402
 
 SETTINGS = [(32, 20, 1200), (32, 100, 120), (32, 20, 240), (128, 4, 1200)]  # (width, instances, points)
 """vMAP: 120 rays x 10 samples per object per step (1200 points), 1200 rays for the background (W=128)."""
@@ -169,7 +169,7 @@ def main() -> None:
               f"{r['loop_modules_ms']:>7.1f} {r['speedup_vs_loop']:>5.2f} | {r['looped_forward_ms']:>7.1f} "
               f"{r['speedup_vs_looped_forward']:>5.2f} | {r['vmap_fwd_bwd_ms']:>7.1f} {r['bank_fwd_bwd_ms']:>7.1f}")
     print("(times in ms; matmul = 2048^2 float32 GFLOP/s timed alongside; loop = one module + AdamW per instance;")
-    print(" looped = looped_forward (mapping.field_reference) + StackedAdam; x = its time / the batched step; fb = forward + backward)")
+    print(" looped = looped_forward (mapping.model.field_reference) + StackedAdam; x = its time / the batched step; fb = forward + backward)")
     print("targets: batched >= 40% of the matmul; >= 2x faster than the loop at 100 x 120; not slower at 20 x 1200")
     print(f"load average after: {os.getloadavg()[0]:.2f} (well above 0 means another process shared the cores)")
     if args.json:

@@ -77,7 +77,7 @@ def main() -> None:
                      "mb_per_round_per_agent": m["bytes_per_round_per_agent_mean"] / 1e6,
                      "mb_total": m["bytes_sent_total"] / 1e6, "fleet_s": m["fleet_s"], "wall_s": m["wall_s"],
                      "rounds": m["rounds"], "compute_s_max": max(m["compute_s"].values()),
-                     "threads": m["config"].get("threads")})
+                     "threads": m["config"].get("run", m["config"]).get("threads")})
     header = ("| config | agents | acc [cm] | comp [cm] | comp ratio [%] | F-mIoU | MB/round/agent | MB total | "
               "fleet [s] | wall [s] |")
     lines = [header, "|" + "---|" * 10]

@@ -32,7 +32,7 @@ from scipy.spatial import cKDTree
 
 from mapping.data.frame import Frame
 
-from mapping.data.source import load_agents
+from mapping.pipeline.data_source import load_agents
 from mapping.evaluate.depth_check import OFF_TOLERANCE_M, depth_check
 from mapping.evaluate.meshing import load_scene_mesh
 from mapping.evaluate.raycast import MeshRaycaster

@@ -27,7 +27,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from mapping.pipeline.records import write_json_atomic
-from mapping.sdf_loss import SdfConfig
+from mapping.model.sdf_loss import SdfConfig
 from openmulti_env.runs.run import run
 
 PUBLISHED_AFTER = SdfConfig().iterations_after

@@ -14,7 +14,7 @@ Variants (``--variants`` picks some; the default runs all):
 | `fixed_keyframes_all` | `fixed`, every frame a keyframe (5x keyframes and iterations) | keyframe selection + length |
 | `fixed_free_x5` | `fixed`, 5 stratified samples per ray instead of 1 | free space inside a box no sample supervises |
 | `fixed_other_half` | `fixed`, half of each instance's rays on other surfaces in its 2D box (default 20 %) | free space in the box |
-| `base` | today's defaults (`TeamConfig.min_keyframes`, `min_local_steps` from the preset; a recording also gets `mapping.agent_config.for_recordings`: carving, then also crossing free-space rays on half the rays; the `base` rows of docs/real_data_study were made before each) | |
+| `base` | today's defaults (`TeamConfig.min_keyframes`, `min_local_steps` from the preset; a recording also gets `mapping.model.agent_config.for_recordings`: carving, then also crossing free-space rays on half the rays; the `base` rows of docs/real_data_study were made before each) | |
 | `other_half` | vMAP's mapper, half of the rays on other surfaces | free space in the box |
 | `crossing` | `base`, free-space rays from every keyframe ray that crosses the 3D box | free space in the box |
 | `crossing_half` | `crossing`, half of the rays free-space ones | free space in the box |
@@ -59,8 +59,8 @@ from typing import Callable
 import numpy as np
 import trimesh
 
-import mapping.data.source as data_source
-from mapping.agent_config import MappingConfig
+import mapping.pipeline.data_source as data_source
+from mapping.model.agent_config import MappingConfig
 from mapping.evaluate.geometry import surface_classes
 from mapping.perception.geometric_segmenter import RANGE_AWARE, GeometricSegmenterConfig
 from mapping.pipeline.records import write_json_atomic

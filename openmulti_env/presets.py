@@ -1,6 +1,8 @@
 """The one table of presets: how big an episode is and how hard the learner works, for ``openmulti run``,
-``openmulti reproduce``, the benchmarks and ``parallel_env`` alike (a name means the same episode
-everywhere; scene presets such as ``room0`` are another thing, in ``openmulti_env.world.presets``).
+``openmulti reproduce``, the benchmarks, ``openmulti train`` and ``parallel_env`` alike. Each preset is a whole
+configuration tree (``openmulti_env.experiment.Experiment``); every entry point starts from one and applies its
+overrides, so a name means the same episode everywhere (scene presets such as ``room0`` are another thing, in
+``openmulti_env.world.presets``).
 
 | preset    | frames / agent | image   | frames / round | keyframe | iterations / keyframe | text encoder |
 |-----------|----------------|---------|----------------|----------|-----------------------|--------------|
@@ -22,107 +24,71 @@ keyframes and coarser meshes (``make demo`` in about 5 minutes here), ``tiny`` f
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import replace
 
-from mapping.agent_config import MappingConfig
+from mapping.model.agent_config import MappingConfig
 from mapping.team import ConsistencyConfig, TeamConfig
+from openmulti_env.experiment.tree import EnvSettings, Experiment, PerceptionSettings
 from openmulti_env.world.paths import PathConfig
 from openmulti_env.world.sensor import SensorConfig
 from openmulti_env.world.world import WorldConfig
 
 
-@dataclass(frozen=True)
-class Preset:
-    """One named episode size: the world, the mapper and team effort, the text encoder, the env's maps."""
-
-    name: str
-    summary: str
-    """One line for ``--help`` and the docs."""
-    mapping: MappingConfig
-    """The mapper's settings (keyframes, iterations, rays, meshing voxels)."""
-    frames_per_agent: int = 120
-    """Frames on each agent's path; the run (episode) ends when they are read."""
-    image_width: int = 320
-    """Camera image width in pixels."""
-    image_height: int = 240
-    """Camera image height in pixels."""
-    planning_points: int = 6000
-    """Surface samples the path planner reasons about."""
-    culling_edge_m: float = 0.05
-    """Granularity of the observable ground truth (faces split to this edge before culling)."""
-    frames_per_round: int = 5
-    """Frames each agent reads per round (env step)."""
-    consistency_iterations: int = ConsistencyConfig.iterations
-    """Consistency iterations (eq. 12 + 13) per round."""
-    rays_per_pose: int = ConsistencyConfig.rays_per_pose
-    """Pixels a ray message replays per shared pose (eq. 13)."""
-    text_encoder: str = "mpnet"
-    """Caption encoder of the front end: ``mpnet`` (all-mpnet-base-v2) or ``minilm`` (all-MiniLM-L6-v2)."""
-    scene: str = "room0"
-    """Default scene of the env."""
-    num_agents: int = 4
-    """Default number of agents of the env."""
-    probe_points: int = 2000
-    """Env only: observable-surface samples of the completion estimate (reward)."""
-    map_size: int = 64
-    """Env only: observation side in pixels."""
-
-    def world_config(self, num_agents: int) -> WorldConfig:
-        """The simulated world of this preset for ``num_agents`` agents."""
-        return WorldConfig(num_agents=num_agents,
-                           path=PathConfig(frames_per_agent=self.frames_per_agent, planning_points=self.planning_points),
-                           sensor=SensorConfig(width=self.image_width, height=self.image_height),
-                           culling_edge_m=self.culling_edge_m)
-
-    def team_config(self, mapping: MappingConfig | None = None, consistency: dict | None = None,
-                    **options) -> TeamConfig:
-        """The team settings; ``mapping`` replaces the preset's mapper settings, ``consistency`` holds
-        ``ConsistencyConfig`` fields (the preset's iterations and rays per pose unless given), ``options``
-        set other ``TeamConfig`` fields."""
-        consistency = ConsistencyConfig(**{"iterations": self.consistency_iterations,
-                                           "rays_per_pose": self.rays_per_pose, **(consistency or {})})
-        mapping = mapping or self.mapping
-        # floor, so that a full path's interval (frames // this) is never below keyframe_every
-        full_path_keyframes = self.frames_per_agent // mapping.keyframe_every
-        return TeamConfig(mapping=mapping, frames_per_round=self.frames_per_round, consistency=consistency,
-                          **{"min_keyframes": full_path_keyframes,
-                             "min_local_steps": full_path_keyframes * mapping.iterations_per_keyframe, **options})
+def _preset(name: str, mapping: MappingConfig, frames_per_agent: int = 120, image: tuple[int, int] = (320, 240),
+            planning_points: int = 6000, culling_edge_m: float = 0.05, frames_per_round: int = 5,
+            consistency_iterations: int = ConsistencyConfig.iterations,
+            rays_per_pose: int = ConsistencyConfig.rays_per_pose, text_encoder: str = "mpnet", scene: str = "room0",
+            num_agents: int = 4, probe_points: int = 2000, map_size: int = 64) -> Experiment:
+    """One row of the table as a tree (the arguments are the columns that differ between presets)."""
+    tree = Experiment(
+        preset=name, scene=scene,
+        world=WorldConfig(num_agents=num_agents,
+                          path=PathConfig(frames_per_agent=frames_per_agent, planning_points=planning_points),
+                          sensor=SensorConfig(width=image[0], height=image[1]), culling_edge_m=culling_edge_m),
+        perception=PerceptionSettings(text_encoder=text_encoder),
+        team=TeamConfig(mapping=mapping, frames_per_round=frames_per_round,
+                        consistency=ConsistencyConfig(iterations=consistency_iterations, rays_per_pose=rays_per_pose)),
+        env=EnvSettings(probe_points=probe_points, map_size=map_size))
+    return tree.with_team_minimums()
 
 
-PRESETS: dict[str, Preset] = {p.name: p for p in (
-    Preset("tiny", "smoke runs and tests: 24 frames per agent at 160x120",
-           MappingConfig(keyframe_every=4, iterations_per_keyframe=10, rays_per_object=60, rays_per_structure=120,
-                         object_voxel_m=0.02, structure_voxel_m=0.04, refit_steps=20),
-           frames_per_agent=24, image_width=160, image_height=120, planning_points=2000, culling_edge_m=0.1,
-           frames_per_round=4, consistency_iterations=2, rays_per_pose=64),
-    Preset("demo", "make demo: fast's paths, a keyframe every 10th frame, 2 cm / 3 cm meshes",
-           MappingConfig(keyframe_every=10, iterations_per_keyframe=20, object_voxel_m=0.02, structure_voxel_m=0.03),
-           frames_per_round=10),
-    Preset("fast", "the measured setting: 120 frames per agent, a keyframe every 5th, 20 iterations each",
-           MappingConfig(keyframe_every=5, iterations_per_keyframe=20)),
-    Preset("full", "the paper's setting: 200 frames per agent, a keyframe every 2nd",
-           MappingConfig(keyframe_every=2, iterations_per_keyframe=20), frames_per_agent=200, frames_per_round=10,
-           probe_points=10000, map_size=96),
-    Preset("rl_tiny", "RL tests: 2 agents in the tiny room, 16 frames at 80x60, 1 iteration per keyframe",
-           MappingConfig(keyframe_every=2, iterations_per_keyframe=1, rays_per_object=24, rays_per_structure=48,
-                         refit_steps=10),
-           frames_per_agent=16, image_width=80, image_height=60, planning_points=1500, culling_edge_m=0.1,
-           frames_per_round=2, consistency_iterations=1, rays_per_pose=24, text_encoder="minilm", scene="tiny",
-           num_agents=2, probe_points=600, map_size=48),
-    Preset("rl_small", "RL training: 60 frames per agent at 80x60 (12 steps), where schedules end points apart",
-           MappingConfig(keyframe_every=5, iterations_per_keyframe=3, rays_per_object=48, rays_per_structure=96,
-                         refit_steps=20),
-           frames_per_agent=60, image_width=80, image_height=60, consistency_iterations=1, rays_per_pose=64,
-           text_encoder="minilm", map_size=48),
-    Preset("rl", "RL-sized: room0, 120 frames at 160x120, 3 iterations per keyframe, about a second per step",
-           MappingConfig(keyframe_every=5, iterations_per_keyframe=3, rays_per_object=48, rays_per_structure=96,
-                         refit_steps=20),
-           image_width=160, image_height=120, consistency_iterations=1, rays_per_pose=64, text_encoder="minilm"),
+PRESETS: dict[str, Experiment] = {p.preset: p for p in (
+    _preset("tiny", MappingConfig(keyframe_every=4, iterations_per_keyframe=10, rays_per_object=60,
+                                  rays_per_structure=120, object_voxel_m=0.02, structure_voxel_m=0.04, refit_steps=20),
+            frames_per_agent=24, image=(160, 120), planning_points=2000, culling_edge_m=0.1, frames_per_round=4,
+            consistency_iterations=2, rays_per_pose=64),
+    _preset("demo", MappingConfig(keyframe_every=10, iterations_per_keyframe=20, object_voxel_m=0.02,
+                                  structure_voxel_m=0.03), frames_per_round=10),
+    _preset("fast", MappingConfig(keyframe_every=5, iterations_per_keyframe=20)),
+    _preset("full", MappingConfig(keyframe_every=2, iterations_per_keyframe=20), frames_per_agent=200,
+            frames_per_round=10, probe_points=10000, map_size=96),
+    _preset("rl_tiny", MappingConfig(keyframe_every=2, iterations_per_keyframe=1, rays_per_object=24,
+                                     rays_per_structure=48, refit_steps=10),
+            frames_per_agent=16, image=(80, 60), planning_points=1500, culling_edge_m=0.1, frames_per_round=2,
+            consistency_iterations=1, rays_per_pose=24, text_encoder="minilm", scene="tiny", num_agents=2,
+            probe_points=600, map_size=48),
+    _preset("rl_small", MappingConfig(keyframe_every=5, iterations_per_keyframe=3, rays_per_object=48,
+                                      rays_per_structure=96, refit_steps=20),
+            frames_per_agent=60, image=(80, 60), consistency_iterations=1, rays_per_pose=64, text_encoder="minilm",
+            map_size=48),
+    _preset("rl", MappingConfig(keyframe_every=5, iterations_per_keyframe=3, rays_per_object=48,
+                                rays_per_structure=96, refit_steps=20),
+            image=(160, 120), consistency_iterations=1, rays_per_pose=64, text_encoder="minilm"),
 )}
 PRESET_NAMES = tuple(PRESETS)
+PRESET_SUMMARIES: dict[str, str] = {
+    "tiny": "smoke runs and tests: 24 frames per agent at 160x120",
+    "demo": "make demo: fast's paths, a keyframe every 10th frame, 2 cm / 3 cm meshes",
+    "fast": "the measured setting: 120 frames per agent, a keyframe every 5th, 20 iterations each",
+    "full": "the paper's setting: 200 frames per agent, a keyframe every 2nd",
+    "rl_tiny": "RL tests: 2 agents in the tiny room, 16 frames at 80x60, 1 iteration per keyframe",
+    "rl_small": "RL training: 60 frames per agent at 80x60 (12 steps), where schedules end points apart",
+    "rl": "RL-sized: room0, 120 frames at 160x120, 3 iterations per keyframe, about a second per step",
+}
+"""One line per preset for ``--help`` and the docs."""
 
 
-def get_preset(name: str) -> Preset:
+def get_preset(name: str) -> Experiment:
     """The preset called ``name`` (ValueError naming the known ones)."""
     if name not in PRESETS:
         raise ValueError(f"unknown preset {name!r}; choose one of {PRESET_NAMES}")
@@ -130,15 +96,21 @@ def get_preset(name: str) -> Preset:
 
 
 def world_config(preset: str, num_agents: int) -> WorldConfig:
-    """``get_preset(preset).world_config(num_agents)``."""
-    return get_preset(preset).world_config(num_agents)
+    """The preset's simulated world for ``num_agents`` agents."""
+    return replace(get_preset(preset).world, num_agents=num_agents)
 
 
 def mapping_config(preset: str) -> MappingConfig:
     """The preset's mapper settings."""
-    return get_preset(preset).mapping
+    return get_preset(preset).team.mapping
 
 
-def team_config(preset: str, **options) -> TeamConfig:
-    """``get_preset(preset).team_config(**options)``."""
-    return get_preset(preset).team_config(**options)
+def team_config(preset: str, mapping: MappingConfig | None = None, consistency: dict | None = None,
+                **options) -> TeamConfig:
+    """The preset's team settings; ``mapping`` replaces its mapper settings (the minimums follow it),
+    ``consistency`` holds ``ConsistencyConfig`` fields to change, ``options`` other ``TeamConfig`` fields."""
+    tree = get_preset(preset)
+    if mapping is not None:
+        tree = replace(tree, team=replace(tree.team, mapping=mapping)).with_team_minimums()
+    team = replace(tree.team, consistency=replace(tree.team.consistency, **(consistency or {})))
+    return replace(team, **options)

@@ -53,7 +53,7 @@ class TrainConfig:
 def same_run(old: dict, new: dict) -> bool:
     """Whether two runs' settings differ only in how long they train (and the command line that said so)."""
     def core(settings: dict) -> dict:
-        kept = {k: v for k, v in settings.items() if k not in ("command", "title")}
+        kept = {k: v for k, v in settings.items() if k not in ("command", "title", "experiment")}
         kept["train"] = {k: v for k, v in settings.get("train", {}).items() if k != "total_env_steps"}
         kept["train"].setdefault("action_form", "entries")  # runs begun before the round form were entries
         return kept

@@ -4,9 +4,9 @@ import numpy as np
 import pytest
 import torch
 
-from mapping.agent import MappingAgent
-from mapping.agent_config import MappingConfig
-from mapping.checkpoint import CheckpointError
+from mapping.model.agent import MappingAgent
+from mapping.model.agent_config import MappingConfig
+from mapping.model.checkpoint import CheckpointError
 from mapping.evaluate import evaluate_mesh
 
 

@@ -23,14 +23,6 @@ def test_scenes_json_describes_instances_and_coverage(capsys, tmp_path):
     assert (tmp_path / "frames_agent_1.png").exists()
 
 
-def test_cli_constants_agree_with_the_modules_they_stand_for():
-    from openmulti_env.runs import cli
-    from openmulti_env.presets import PRESET_NAMES as RUN_PRESETS
-    from openmulti_env.world.world import MAX_AGENTS
-
-    assert cli.RUN_PRESETS == RUN_PRESETS and cli.MAX_AGENTS == MAX_AGENTS
-
-
 def test_bad_input_gives_clear_errors(capsys, tmp_path):
     assert main(["run", "--scene", "kitchen9", "--preset", "tiny"]) == 2
     assert "unknown scene 'kitchen9'" in capsys.readouterr().err
@@ -65,7 +57,7 @@ def test_team_run_writes_metrics_answers_queries_and_resumes(capsys, tmp_path):
     assert 0.0 < metrics["team"]["f_miou"] <= 100.0 and metrics["team"]["per_class"]
     assert metrics["bytes_sent_total"] == sum(metrics["bytes_per_round"]) > 0 and metrics["wall_s"] > 0
     assert metrics["rounds"] == len(metrics["bytes_per_round"]) == 6 and metrics["fleet_s"] > 0
-    assert metrics["config"]["policy"] == "always" and metrics["messages"]["delivered"] == 4 * 6
+    assert metrics["config"]["run"]["policy"] == "always" and metrics["messages"]["delivered"] == 4 * 6
     rounds = json.loads((out / "rounds.json").read_text())["rounds"]
     assert [r["round"] for r in rounds] == list(range(6))
     assert (out / "meshes" / "agent_0.ply").exists() and (out / "plots" / "reconstruction_top_down.png").exists()

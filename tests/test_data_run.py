@@ -14,12 +14,12 @@ import pytest
 
 from scipy.spatial.transform import Rotation
 
-import mapping.data.source as source
-from mapping.agent_config import MappingConfig, for_recordings
+import mapping.pipeline.data_source as source
+from mapping.model.agent_config import MappingConfig, for_recordings
 from mapping.data import DatasetError, DatasetWarning
 from mapping.data.checks import CONFLICT_NOTE_SHARE, pose_conflict_note
-from mapping.data.source import check_sequence, load_agents, load_gt_mesh, parse_frames, parse_intrinsics
-from mapping.losses import DataLossWeights
+from mapping.pipeline.data_source import check_sequence, load_agents, load_gt_mesh, parse_frames, parse_intrinsics
+from mapping.model.losses import DataLossWeights
 from mapping.perception.geometric_segmenter import RANGE_AWARE, segmenter_settings
 from mapping.pipeline.records import forget_stale_checkpoints
 from openmulti_env.runs.cli import main
@@ -54,12 +54,12 @@ def test_replica_team_always_writes_the_run_contract_and_answers_queries(tmp_pat
         assert 0 < m["f_miou"] <= 100 and 0 < m["f_macc"] <= 100
         assert m["depth_median_cm"] is not None and 0 <= m["depth_off_pct"] <= 100  # against the data's own depth
     assert metrics["ground_truth"] == "given" and metrics["masks"] == "dataset"
-    assert metrics["config"]["frames_per_agent"] == {"agent_0": 6, "agent_1": 6}
-    team = metrics["config"]["team"]  # a recording gets empty-space carving and crossing free-space rays;
+    assert metrics["resolved"]["frames_per_agent"] == {"agent_0": 6, "agent_1": 6}
+    team = metrics["resolved"]["team"]  # a recording gets empty-space carving and crossing free-space rays;
     assert team["mapping"]["loss_weights"]["free_space"] == 10.0 and team["min_keyframes"] == 6  # all keyframes
     assert team["mapping"]["free_space_rays"] == "crossing" and team["mapping"]["own_ray_fraction"] == 0.5
     # the team ran its rounds (6 frames per agent, 4 per round on tiny) and talked in every one
-    assert metrics["config"]["policy"] == "always" and metrics["config"]["team"]["alignment"] is True
+    assert metrics["config"]["run"]["policy"] == "always" and metrics["config"]["team"]["alignment"] is True
     assert metrics["rounds"] == len(metrics["bytes_per_round"]) == 2 and metrics["fleet_s"] > 0
     assert metrics["bytes_sent_total"] == sum(metrics["bytes_per_round"]) > 0 and min(metrics["bytes_per_round"]) > 0
     assert metrics["messages"] == {"delivered": 2 * 2 * 2, "dropped": 0, "over_budget": 0} and metrics["wall_s"] > 0
@@ -103,7 +103,7 @@ def test_bernoulli_team_run_interrupted_after_a_round_resumes(tmp_path, capsys, 
     msgs = metrics["messages"]
     assert msgs["delivered"] + msgs["dropped"] == 2 * 2 * 2 and msgs["dropped"] > 0 and msgs["delivered"] > 0
     assert metrics["bytes_sent_total"] > 0  # a dropped message costs its sender
-    assert KEYS <= set(metrics["mean"]) and metrics["config"]["policy"] == "bernoulli:0.5"
+    assert KEYS <= set(metrics["mean"]) and metrics["config"]["run"]["policy"] == "bernoulli:0.5"
 
 
 def test_scannet_with_masks_without_mesh_is_scored_against_a_tsdf_reference(tmp_path, capsys):
@@ -135,7 +135,7 @@ def test_plain_rgbd_without_masks_uses_the_geometric_segmenter_and_never_talks(t
 
 def test_no_masks_no_mesh_and_a_frame_selection(tmp_path, capsys):
     metrics = _run(tmp_path / "bare", NICE_SLAM, "--agents", "1", "--frames", "0:12:3")
-    assert metrics["config"]["frames_per_agent"] == {"agent_0": 4}
+    assert metrics["resolved"]["frames_per_agent"] == {"agent_0": 4}
     assert metrics["masks"] == "geometric" and metrics["ground_truth"] == "tsdf_reference"
 
 

@@ -105,7 +105,7 @@ def test_bad_actions_name_the_agent_and_the_problem(cache):
 def test_bad_construction_is_refused_clearly(cache):
     with pytest.raises(ValueError, match="unknown preset 'huge'"):
         parallel_env(preset="huge")
-    with pytest.raises(TypeError, match="unknown env option"):
+    with pytest.raises(TypeError, match="unknown option 'rays_per_objekt'; did you mean rays_per_object"):
         parallel_env(preset="rl_tiny", rays_per_objekt=3)
     with pytest.raises(ValueError, match="reward must be one of"):
         parallel_env(preset="rl_tiny", reward="selfish")
@@ -113,7 +113,7 @@ def test_bad_construction_is_refused_clearly(cache):
         parallel_env(preset="rl_tiny", num_agents=1)
     with pytest.raises(ValueError, match="learner must be one of"):
         parallel_env(preset="rl_tiny", learner="batched")
-    with pytest.raises(ValueError, match="not with agent_processes"):
+    with pytest.raises(ValueError, match="not with run.processes"):
         parallel_env(preset="rl_tiny", learner="fleet", agent_processes="ray")
     with pytest.raises(ValueError, match="render_mode"):
         parallel_env(preset="rl_tiny", render_mode="ascii")
@@ -219,13 +219,13 @@ def test_world_cache_key_changes_with_what_shapes_the_world(tmp_path):
     from openmulti_env.world.cache import world_cache_key
 
     base = env_config("rl_tiny")
-    key = world_cache_key("tiny", 0, base.world_config())
-    assert key == world_cache_key("tiny", 0, env_config("rl_tiny").world_config())
-    assert key != world_cache_key("tiny", 1, base.world_config())
-    assert key != world_cache_key("tiny", 0, env_config("rl_tiny", image_width=96).world_config())
-    assert key != world_cache_key("room0", 0, base.world_config())
+    key = world_cache_key("tiny", 0, base.world)
+    assert key == world_cache_key("tiny", 0, env_config("rl_tiny").world)
+    assert key != world_cache_key("tiny", 1, base.world)
+    assert key != world_cache_key("tiny", 0, env_config("rl_tiny", image_width=96).world)
+    assert key != world_cache_key("room0", 0, base.world)
     # options that do not shape the world share its entry
-    assert key == world_cache_key("tiny", 0, env_config("rl_tiny", rays_per_object=7).world_config())
+    assert key == world_cache_key("tiny", 0, env_config("rl_tiny", rays_per_object=7).world)
 
 
 def test_world_cache_is_trimmed_to_its_cap(tmp_path):
@@ -258,7 +258,7 @@ def test_world_cache_key_follows_a_manifests_meshes(tmp_path):
     manifest = tmp_path / "room.json"
     manifest.write_text(json.dumps({"name": "r", "room": {"size_m": [3, 3, 2.5]},
                                     "objects": [{"mesh": "box.obj", "category": "box", "position_m": [1.5, 1.5]}]}))
-    config = env_config("rl_tiny").world_config()
+    config = env_config("rl_tiny").world
     before = world_cache_key(str(manifest), 0, config)
     assert before == world_cache_key(str(manifest), 0, config)
     trimesh.creation.box((0.6, 0.5, 0.5)).export(tmp_path / "box.obj")  # same manifest, another mesh

@@ -43,7 +43,7 @@ def _episode(env, seed=3):
 
 def test_a_world_that_differs_where_an_agent_never_looks_gives_it_the_same_observations(cache, monkeypatch):
     cfg = env_config("rl_tiny")
-    world, _ = cached_world(cfg.scene, 0, cfg.world_config(), cache)
+    world, _ = cached_world(cfg.scene, 0, cfg.world, cache)
     # a spot agent_1 sees and agent_0 never comes near: the floor point of agent_1's frames farthest (in xy)
     # from everything agent_0's frames hit
     seen = [np.concatenate([world.render(a, k).backproject(stride=2) for k in range(len(world.agent_poses[a]))])

@@ -11,14 +11,14 @@ import pytest
 import torch
 
 from mapping.data.frame import Intrinsics
-from mapping.encoding import COLOUR_INPUT_DIM, GEOMETRY_INPUT_DIM, encode_positions, icosahedron_directions
-from mapping.field import FieldConfig, FieldOutput, InstanceFieldBank
-from mapping.field_reference import looped_forward
-from mapping.instance_frames import refit_frames
-from mapping.optim import AdamConfig, StackedAdam, reference_adamw
+from mapping.model.encoding import COLOUR_INPUT_DIM, GEOMETRY_INPUT_DIM, encode_positions, icosahedron_directions
+from mapping.model.field import FieldConfig, FieldOutput, InstanceFieldBank
+from mapping.model.field_reference import looped_forward
+from mapping.model.instance_frames import refit_frames
+from mapping.model.optim import AdamConfig, StackedAdam, reference_adamw
 from mapping.runtime import resolve_device, same_device
-from mapping.losses import DataLossWeights, data_loss, depth_loss, masked_mean, occupancy_loss
-from mapping.render import (
+from mapping.model.losses import DataLossWeights, data_loss, depth_loss, masked_mean, occupancy_loss
+from mapping.model.render import (
     CompositeConfig,
     RayBundle,
     SamplerConfig,
@@ -371,7 +371,7 @@ def test_losses_follow_eq_8_to_11():
     assert torch.isclose(depth_loss(rendered_depth, depth_gt, mask), torch.tensor(0.5))
     assert torch.isclose(depth_loss(rendered_depth, depth_gt, mask, variance=torch.full((2, 3), 0.25)),
                          torch.tensor(0.5 / (0.5 + 1e-4)))
-    from mapping.render import RenderedRays
+    from mapping.model.render import RenderedRays
 
     rendered = RenderedRays(occupancy, rendered_depth, torch.zeros(2, 3, 3), torch.zeros(2, 3, 1), torch.zeros(2, 3))
     rgb = torch.full((2, 3, 3), 0.5)
@@ -420,14 +420,14 @@ def test_one_instance_learns_a_sphere_from_depth():
 
 
 def test_mapping_field_modules_import_no_env_packages():
-    code = ("import sys, mapping.field, mapping.render, mapping.losses; "
+    code = ("import sys, mapping.model.field, mapping.model.render, mapping.model.losses; "
             "bad = [m for m in ('pettingzoo', 'gymnasium', 'pyrender', 'openmulti_env') if m in sys.modules]; "
             "assert not bad, bad")
     subprocess.run([sys.executable, "-c", code], check=True)
 
 
 def test_samples_are_in_depth_order_when_the_box_starts_inside_the_surface_band():
-    from mapping.render import RayBundle, sample_along_rays
+    from mapping.model.render import RayBundle, sample_along_rays
 
     rays = RayBundle(torch.zeros(64, 3), torch.tensor([[0.0, 0.0, 1.0]]).expand(64, 3).contiguous())
     depth = torch.full((64,), 2.0)
@@ -438,8 +438,8 @@ def test_samples_are_in_depth_order_when_the_box_starts_inside_the_surface_band(
 
 
 def test_depth_and_colour_losses_ignore_invalid_rays():
-    from mapping.losses import data_loss
-    from mapping.render import render_occupancy
+    from mapping.model.losses import data_loss
+    from mapping.model.render import render_occupancy
 
     occ = torch.tensor([[0.0, 0.0, 0.9], [0.0, 0.0, 0.9]])
     depths = torch.tensor([[1.0, 1.5, 2.0], [1.0, 1.5, 2.0]])
@@ -452,7 +452,7 @@ def test_depth_and_colour_losses_ignore_invalid_rays():
 
 
 def test_free_space_loss_counts_only_samples_in_front_of_an_observed_surface():
-    from mapping.losses import free_space_loss
+    from mapping.model.losses import free_space_loss
 
     occupancy = torch.tensor([[[0.5, 0.2, 1.0], [0.9, 0.9, 0.9]]])  # (N=1, R=2, S=3)
     depths = torch.tensor([[[0.5, 1.0, 2.0], [0.5, 1.0, 2.0]]])
@@ -465,7 +465,7 @@ def test_free_space_loss_counts_only_samples_in_front_of_an_observed_surface():
 def test_query_blocks_pad_little_and_give_every_point_its_instances_value():
     """Very unequal instances (a wall and a cup): blocks far smaller than the largest instance, and the same
     values as each instance evaluated alone."""
-    from mapping.field import query_block
+    from mapping.model.field import query_block
 
     counts = torch.tensor([3000, 40, 0, 700, 5])
     block = query_block(counts)

@@ -1,4 +1,4 @@
-"""The fleet-batched learner (``mapping.fleet``, ``Team(learner="fleet")``): the same maps and bytes as every
+"""The fleet-batched learner (``mapping.model.fleet``, ``Team(learner="fleet")``): the same maps and bytes as every
 agent training on its own, whatever the iteration counts; bad input refused."""
 
 from __future__ import annotations
@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 import torch
 
-from mapping.agent import MappingAgent
-from mapping.fleet import fleet_train, joint_evaluation
+from mapping.model.agent import MappingAgent
+from mapping.model.fleet import fleet_train, joint_evaluation
 from mapping.team import ConsistencyConfig, RoundPlan, Team, TeamConfig
 
 

@@ -5,7 +5,7 @@ import pytest
 import torch
 
 from mapping.data import Frame, Intrinsics
-from mapping.keyframes import KeyframeBuffer
+from mapping.model.keyframes import KeyframeBuffer
 
 K = Intrinsics(fx=20.0, fy=20.0, cx=15.5, cy=11.5, width=32, height=24)
 

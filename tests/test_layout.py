@@ -60,3 +60,39 @@ def test_no_module_imports_another_modules_private_names(package: str):
 def test_modules_stay_small(package: str):
     big = {str(p.relative_to(ROOT)): n for p in modules(package) if (n := len(p.read_text().splitlines())) > MAX_LINES}
     assert not big, f"modules over {MAX_LINES} lines (split them by job): {big}"
+
+
+def subpackage_graph(package: str):
+    """Which sub-package of ``package`` imports which (a module at its root counts as a sub-package of its own
+    name), from every import in the source, function-level ones included."""
+    import networkx as nx  # noqa: PLC0415
+
+    graph = nx.DiGraph()
+    for path in modules(package):
+        parts = path.relative_to(ROOT / package).with_suffix("").parts
+        source = parts[0]
+        if source == "__init__":
+            continue
+        graph.add_node(source)
+        for module, _ in imports(path):
+            target = module.split(".")
+            if target[0] == package and len(target) > 1 and target[1] != source:
+                graph.add_edge(source, target[1], example=f"{path.relative_to(ROOT)} -> {module}")
+    return graph
+
+
+def test_mapping_subpackages_import_without_cycles():
+    """``mapping``'s parts stack: data and perception under fusion, alignment and the model, the team on those,
+    the pipeline and evaluation on top; no two parts import each other through any path."""
+    import networkx as nx  # noqa: PLC0415
+
+    graph = subpackage_graph("mapping")
+    cycles = list(nx.simple_cycles(graph))
+    described = ["  " + " -> ".join(c + [c[0]]) + "   e.g. " + "; ".join(
+        graph.edges[a, b]["example"] for a, b in zip(c, c[1:] + c[:1])) for c in cycles[:5]]
+    assert not cycles, f"{len(cycles)} import cycle(s) between mapping's sub-packages:\n" + "\n".join(described)
+
+
+def test_mapping_keeps_its_model_in_a_subpackage():
+    loose = sorted(p.stem for p in (ROOT / "mapping").glob("*.py") if p.stem != "__init__")
+    assert loose == ["config_fields", "pointcloud", "runtime"], f"modules loose at mapping's root: {loose}"

@@ -5,9 +5,9 @@ import pytest
 import torch
 import trimesh
 
-from mapping.bounds import InstanceBound
-from mapping.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
-from mapping.keyframes import KeyframeBuffer
+from mapping.model.bounds import InstanceBound
+from mapping.model.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
+from mapping.model.keyframes import KeyframeBuffer
 
 
 def test_bound_is_padded_robust_and_at_least_10cm():

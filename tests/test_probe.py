@@ -10,7 +10,7 @@ import pytest
 import torch
 
 from mapping.evaluate.probe import estimated_completion_ratio, surface_probe_coverage
-from mapping.field import FieldOutput
+from mapping.model.field import FieldOutput
 
 
 class SphereBank:

@@ -12,7 +12,7 @@ import trimesh
 
 from mapping.data.frame import Intrinsics
 from mapping.evaluate.culling import cull_to_frustums
-from mapping.sdf_loss import SdfConfig
+from mapping.model.sdf_loss import SdfConfig
 from mapping.team.global_map import GLOBAL_ENCODING_SCALE
 from openmulti_env.runs.reproduce.command import reproduce
 from openmulti_env.runs.reproduce.methods import METHODS, TABLE_I_METHODS, get_method
@@ -31,13 +31,15 @@ def test_design_method_names_are_all_presets():
 
 @pytest.mark.parametrize("method", list(METHODS))
 def test_every_method_runs_two_rounds_on_the_tiny_world_and_writes_a_row(method, tmp_path, monkeypatch):
+    run_fn = None
     if METHODS[method].global_form == "published":  # MACIM's width-256 SDF: the path, at a test's size
-        from openmulti_env.runs import run as run_module
+        from openmulti_env.runs.run import run
 
         small = SdfConfig(width=32, rays=64, iterations_first=150, iterations_after=2)  # a room-sized surface
-        monkeypatch.setattr(run_module, "SdfConfig", lambda: small)
+        run_fn = lambda *args, **options: run(*args, sdf=small, **options)  # noqa: E731
     spec = RunSpec(method, "tiny", 0, METHODS[method].agents or 2)
-    (row,) = run_table([spec], "tiny", tmp_path, threads=1, three_cullings=False, max_rounds=2, progress=False)
+    (row,) = run_table([spec], "tiny", tmp_path, threads=1, three_cullings=False, max_rounds=2, progress=False,
+                       run_fn=run_fn)
     assert row["method"] == method and (tmp_path / "rows" / f"{spec.key('tiny')}.json").is_file()
     assert row["rounds"] == 2 and row["comp_ratio"] >= 0 and row["time_per_round_s"] > 0
     assert row["acc_cm"] is None or row["acc_cm"] > 0
@@ -318,7 +320,7 @@ def test_tradeoff_table_runs_each_policy_on_each_scene_and_marks_the_pareto_fron
 def test_a_setting_added_at_its_old_behaviour_leaves_recorded_rows_valid():
     from dataclasses import replace
 
-    from mapping.agent_config import MappingConfig
+    from mapping.model.agent_config import MappingConfig
     from mapping.pipeline.records import settings_record
     from openmulti_env.runs.reproduce.runner import library_defaults
 

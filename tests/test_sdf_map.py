@@ -8,15 +8,15 @@ import numpy as np
 import pytest
 import torch
 
-from mapping.agent import MappingAgent, SdfBatch
-from mapping.agent_config import MappingConfig
+from mapping.model.agent import MappingAgent, SdfBatch
+from mapping.model.agent_config import MappingConfig
 from mapping.data import Frame, Intrinsics
-from mapping.field import STRUCTURE_FIELD, InstanceFieldBank
-from mapping.fleet import fleet_train
-from mapping.optim import AdamConfig, StackedAdam
-from mapping.sdf_field import SdfFieldBank
-from mapping.sdf_loss import SdfConfig, batch_bounds, eikonal_loss, sdf_loss, sdf_samples, sdf_step_loss
-from mapping.sdf_network import SDF_ENCODING_DIM, init_sdf_params, sdf_param_layout
+from mapping.model.field import STRUCTURE_FIELD, InstanceFieldBank
+from mapping.model.fleet import fleet_train
+from mapping.model.optim import AdamConfig, StackedAdam
+from mapping.model.sdf_field import SdfFieldBank
+from mapping.model.sdf_loss import SdfConfig, batch_bounds, eikonal_loss, sdf_loss, sdf_samples, sdf_step_loss
+from mapping.model.sdf_network import SDF_ENCODING_DIM, init_sdf_params, sdf_param_layout
 from mapping.team.global_map import published_mapping
 
 SMALL = SdfConfig(width=32, rays=64, n_stratified=6, n_surface=3, iterations_first=2, iterations_after=4)
@@ -226,7 +226,7 @@ def test_a_study_budget_reaches_the_published_map_and_is_refused_for_any_other(t
 
 
 def test_softplus_is_isdfs_with_exact_first_and_second_derivatives():
-    from mapping.sdf_network import softplus
+    from mapping.model.sdf_network import softplus
 
     x = torch.linspace(-3, 3, 20001, dtype=torch.float64, requires_grad=True)
     y = softplus(x)

@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 import torch
 
-from mapping.field import OBJECT_FIELD, InstanceFieldBank
-from mapping.optim import AdamConfig, StackedAdam
-from mapping.render import RayBundle
+from mapping.model.field import OBJECT_FIELD, InstanceFieldBank
+from mapping.model.optim import AdamConfig, StackedAdam
+from mapping.model.render import RayBundle
 from mapping.team import (Channel, ChannelConfig, ConsistencyConfig, InstancePayload, MessageError, ParameterMessage,
                           PlanError, RayMessage, RoundPlan, Team, TeamConfig, from_bytes, to_bytes)
 from mapping.team.arrival import InstanceView, align_arrivals
@@ -188,7 +188,7 @@ def test_render_consistency_fits_a_blind_zone_where_parameter_consistency_alone_
     peer = _plane_bank(0, 400)  # the peer saw the surface
     rays = _down_rays()
     with torch.no_grad():
-        from mapping.render import CompositeConfig, composite_instances
+        from mapping.model.render import CompositeConfig, composite_instances
         target = composite_instances([peer], rays, CompositeConfig(samples_per_box=32), with_colour=False).depth
 
     def blind_error(use_render: bool) -> float:
@@ -228,7 +228,7 @@ def test_instance_form_of_eq13_fits_a_blind_zone_and_keeps_free_space_free():
         opt.step()
     assert used == len(rays)
     with torch.no_grad():
-        from mapping.render import CompositeConfig, composite_instances
+        from mapping.model.render import CompositeConfig, composite_instances
         depth = composite_instances([me], rays, CompositeConfig(samples_per_box=64), with_colour=False).depth
         column = torch.stack([torch.zeros(20), torch.zeros(20), torch.linspace(1.0, 1.35, 20)], 1)
         in_front = me(column[None], with_colour=False).occupancy
@@ -255,7 +255,7 @@ def test_eq13_trusts_a_surface_i_saw_in_front_of_the_peers():
         bound_min, bound_max, num_instances = torch.tensor([[-0.5, -0.5, 1.0]]), torch.tensor([[0.5, 0.5, 2.0]]), 1
 
         def query(self, points, rows, with_colour=True, block_size=4096):
-            from mapping.field import FieldOutput
+            from mapping.model.field import FieldOutput
             return FieldOutput((points[:, 2] > 1.8).float(), None)
 
     rays, labels = _down_rays(64), [torch.tensor([0])]
@@ -459,7 +459,7 @@ def test_each_algorithm_takes_its_own_penalty_weight():
 
 
 def test_a_message_over_budget_books_nothing(tiny_world):
-    team, _ = _tiny_team(tiny_world, channel=ChannelConfig(budget_bytes=10))
+    team, _ = _tiny_team(tiny_world, channel=ChannelConfig(budget_mb=1e-5))
     report = team.round(RoundPlan(~np.eye(2, dtype=bool), np.zeros((2, 2), bool)))
     assert report.over_budget == 2 and report.delivered == 0
     for m in team.members:

@@ -121,6 +121,8 @@ def test_the_round_action_form_is_refused_by_the_rllib_backend(tmp_path):
 
     with pytest.raises(ValueError, match="SB3 backend only"):
         train_rllib(lambda index: None, TrainConfig(action_form="round"), tmp_path / "run", {})
-    args = SimpleNamespace(backend="rllib", ray=None, action_form="round")
+    from openmulti_env.runs.cli import build_parser
+
+    args = build_parser().parse_args(["train", "--backend", "rllib", "--action-form", "round"])
     with pytest.raises(ValueError, match="--action-form round trains with the sb3 backend only"):
         train_command(args)

@@ -7,6 +7,7 @@ import json
 import math
 import os
 from pathlib import Path
+from typing import Callable
 
 
 def write_json_atomic(path: Path, data: dict) -> None:
@@ -28,12 +29,14 @@ def mean_or_none(values: list) -> float | None:
     return sum(vals) / len(vals) if vals else None
 
 
-def forget_stale_checkpoints(out: Path, settings: dict) -> None:
+def forget_stale_checkpoints(out: Path, settings: dict, read_old: Callable[[dict], dict | None] | None = None) -> None:
     """Keep ``out/checkpoints/*.pt`` only if they were made with these ``settings`` (ids, masks and maps
-    depend on all of them); otherwise delete them, so a resumed run never mixes two runs."""
+    depend on all of them); otherwise delete them, so a resumed run never mixes two runs. ``read_old`` reads a
+    record an older version wrote as this version's (None: it cannot be trusted)."""
     path = out / "checkpoints" / "run_settings.json"
     try:
-        same = json.loads(path.read_text()) == settings
+        old = json.loads(path.read_text())
+        same = old == settings or (read_old is not None and isinstance(old, dict) and read_old(old) == settings)
     except (OSError, ValueError):  # no record (or an unreadable one): the checkpoints cannot be trusted
         same = False
     stale = [] if same else sorted((out / "checkpoints").glob("*.pt"))

@@ -20,7 +20,7 @@ from typing import Callable
 import numpy as np
 from tqdm import tqdm
 
-from mapping.checkpoint import CheckpointError
+from mapping.model.checkpoint import CheckpointError
 from mapping.evaluate import SampledSurface
 from mapping.pipeline.records import as_record, forget_stale_checkpoints, plain, write_json_atomic
 from mapping.pipeline.scoring import DEPTH_CHECK_EVERY, mean_metrics, score_member, team_semantics
@@ -96,6 +96,10 @@ class RunResult:
     rounds: int
     wall_s: float
     config: dict
+    """The run's settings (``openmulti run``: the whole configuration tree, as in ``config.yaml``)."""
+    resolved: dict
+    """What the run resolved from them: the team it started (a global map's frame, a recording's mapper) and
+    values that follow from the settings (e.g. the error rates)."""
     notes: str
     extra: dict = field(default_factory=dict)
     """Source-specific fields (e.g. ``map``, ``ground_truth``, ``masks``)."""
@@ -118,7 +122,8 @@ def run_team(source: Source, record: SourceRecord, config: RunConfig, schedule: 
     out = Path(config.out)
     # checkpoints must come from the same team settings too, defaults included: a run made before a
     # default changed is mapped again, not resumed into a mix of two versions
-    forget_stale_checkpoints(out, {**record.settings, "team": as_record(asdict(config.team))})
+    identity = record.settings if record.identity is None else record.identity
+    forget_stale_checkpoints(out, {**identity, "team": as_record(asdict(config.team))}, record.read_identity)
     team = Team(source.streams(), config.team, source.vocabulary(), seed=config.seed, channel=config.channel,
                 device=config.device, workers=config.workers, processes=config.processes,
                 learner=config.learner)
@@ -138,7 +143,8 @@ def run_team(source: Source, record: SourceRecord, config: RunConfig, schedule: 
         team.release()  # member processes end once their maps are copied here
     note = METRICS_NOTE.format(culling=gt.culling_note) if gt is not None else NOT_EVALUATED_NOTE
     result = RunResult(**scores, **round_costs(team, reports), wall_s=time.perf_counter() - start,
-                       config={**record.settings, **record.described, "team": plain(asdict(config.team))},
+                       config=record.settings,
+                       resolved={"team": plain(asdict(config.team)), **record.described},
                        notes=" ".join(record.notes + [note]), extra=record.results, evaluated=config.evaluate)
     write_outputs(out, result, reports, config)
     return result

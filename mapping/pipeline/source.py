@@ -1,6 +1,6 @@
 """What a run maps: a ``Source`` gives the agents' frame streams, the vocabulary, the ground truth (or a
 reference) to score against, and the sensor views for pictures. The simulator
-(``openmulti_env.runs.sim_source``) and real data sets (``mapping.data.source``) are both sources, so one
+(``openmulti_env.runs.sim_source``) and real data sets (``mapping.pipeline.data_source``) are both sources, so one
 pipeline (``mapping.pipeline.runner``) runs, scores and writes every run.
 """
 
@@ -91,11 +91,17 @@ class SourceRecord:
     extra result fields and notes."""
 
     settings: dict
+    """The run's settings as recorded in ``metrics.json``'s ``config`` (e.g. the whole configuration tree)."""
     results: dict = field(default_factory=dict)
     """Extra fields of ``metrics.json`` (e.g. ``map``, ``ground_truth``)."""
     notes: list[str] = field(default_factory=list)
     caption: Callable[[int, str], str] | None = None
     """Renames the captions written in the code books (``caption(id, caption)``), e.g. geometric segments."""
     described: dict = field(default_factory=dict)
-    """Written in ``metrics.json``'s ``config`` beside ``settings``, outside the checkpoints' key (values
-    that follow from the settings, e.g. the error rates)."""
+    """Written in ``metrics.json``'s ``resolved`` beside the team the run resolved, outside the checkpoints' key
+    (values that follow from the settings, e.g. the error rates)."""
+    identity: dict | None = None
+    """What the checkpoints are kept under, besides the team (None: ``settings``)."""
+    read_identity: Callable[[dict], dict | None] | None = None
+    """Reads a checkpoint record written by an older version as this version's identity (None: compared as
+    written)."""

@@ -14,7 +14,7 @@ from typing import Callable, Sequence
 import numpy as np
 import torch
 
-from mapping.field import InstanceFieldBank, LiveRows
+from mapping.model.field import InstanceFieldBank, LiveRows
 from mapping.team.consistency import (ConsistencyPairs, PairKey, consensus_penalty, degree_listing,
                                       dinno_dual_update, dinno_penalty, metropolis_mix, metropolis_weights)
 from mapping.team.cross_rendering import (instance_render_consistency_loss, peer_render_targets, rays_of_message,

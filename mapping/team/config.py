@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from mapping.agent_config import MappingConfig
+from mapping.model.agent_config import MappingConfig
 from mapping.fusion.online import OnlineFusionConfig
 from mapping.team.arrival import ArrivalConfig
 from mapping.team.consistency import MISSING_EDGES

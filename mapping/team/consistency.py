@@ -1,7 +1,7 @@
 """Parameter consistency between agents (paper eq. 12), as three options of one mechanism.
 
 Each agent keeps the last parameters received from each peer for the instances both hold (aligned
-ids, the same frame: ``mapping.instances.InstanceFrame``). A *pair* is (own row, peer vector). Per round:
+ids, the same frame: ``mapping.model.instances.InstanceFrame``). A *pair* is (own row, peer vector). Per round:
 ``begin`` runs once before the consistency iterations, ``penalty`` is added to every iteration's loss.
 
 - ``consensus`` (MACIM): (rho/2) ||theta - (theta_0 + theta_j)/2||^2, theta_0 the own parameters at the

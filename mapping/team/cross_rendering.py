@@ -18,8 +18,8 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from mapping.losses import DEPTH_UNCERTAINTY_EPS, DataLossWeights
-from mapping.render import (CompositeConfig, InstanceField, RayBundle, SamplerConfig, camera_rays, composite_instances,
+from mapping.model.losses import DEPTH_UNCERTAINTY_EPS, DataLossWeights
+from mapping.model.render import (CompositeConfig, InstanceField, RayBundle, SamplerConfig, camera_rays, composite_instances,
                             ray_aabb, render_occupancy, sample_along_rays)
 from mapping.data.frame import Intrinsics
 from mapping.team.messages import RayMessage, replay_pixels

@@ -16,10 +16,10 @@ from dataclasses import replace
 
 import numpy as np
 
-from mapping.agent_config import MappingConfig
-from mapping.instance_params import mlp_flops_per_point
+from mapping.model.agent_config import MappingConfig
+from mapping.model.instance_params import mlp_flops_per_point
 from mapping.perception.codebook import CodeBookEntry
-from mapping.sdf_loss import SdfConfig
+from mapping.model.sdf_loss import SdfConfig
 
 GLOBAL_WIDTH = 128
 """Hidden width of a global map's one network (vMAP's background network)."""

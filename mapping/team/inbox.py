@@ -11,8 +11,8 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from mapping.instances import ExportedInstance, InstanceFrame
-from mapping.bounds import InstanceBound
+from mapping.model.instances import ExportedInstance, InstanceFrame
+from mapping.model.bounds import InstanceBound
 from mapping.team.arrival import ArrivalDecision, InstanceView, align_arrivals
 from mapping.team.global_map import GLOBAL_INSTANCE_ID
 from mapping.team.messages import InstancePayload, ParameterMessage, RayMessage

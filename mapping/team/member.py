@@ -20,7 +20,7 @@ from typing import Callable, Protocol, Sequence
 import numpy as np
 import torch
 
-from mapping.agent import MappingAgent
+from mapping.model.agent import MappingAgent
 from mapping.data.frame import Frame
 from mapping.fusion.online import OnlineFusion
 from mapping.perception.codebook import CodeBook, CodeBookEntry
@@ -33,7 +33,7 @@ from mapping.team.inbox import Inbox
 from mapping.team.messages import InstancePayload
 from mapping.team.outbox import Outbox
 from mapping.team.report import AgentSnapshot, LinkState, PeerKnowledge
-from mapping.topdown import ColumnGrid, ColumnMap, column_map
+from mapping.model.topdown import ColumnGrid, ColumnMap, column_map
 
 
 class AgentStream(Protocol):
@@ -268,7 +268,7 @@ class TeamMember(StreamReader, Outbox, Inbox, Agreement):
         return surface_probe_coverage(self.mapper, points, normals)
 
     def column_map(self, grid: ColumnGrid) -> ColumnMap:
-        """Its map read on the columns of ``grid`` (``mapping.topdown.column_map``; the observation's view)."""
+        """Its map read on the columns of ``grid`` (``mapping.model.topdown.column_map``; the observation's view)."""
         return column_map(self.mapper, grid)
 
     # ---- outputs ---------------------------------------------------------------------------------

@@ -24,7 +24,7 @@ from mapping.team.config import TeamConfig
 from mapping.team.member import AgentStream, LocalReport, StreamReader, TeamMember, Vocabulary
 from mapping.team.messages import Message, from_bytes, to_bytes
 from mapping.team.report import AgentSnapshot, AlignmentCounts, ConsistencyTerms
-from mapping.topdown import ColumnGrid, ColumnMap
+from mapping.model.topdown import ColumnGrid, ColumnMap
 
 
 @dataclass(frozen=True)

@@ -24,8 +24,8 @@ from typing import Sequence
 
 import numpy as np
 
-from mapping.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
-from mapping.fleet import ExtraLoss, fleet_train
+from mapping.model.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
+from mapping.model.fleet import ExtraLoss, fleet_train
 from mapping.team.channel import DELIVERED, DROPPED, OVER_BUDGET, Channel
 from mapping.team.config import TeamConfig
 from mapping.team.member import AgentStream, TeamMember, Vocabulary
@@ -36,7 +36,7 @@ from mapping.team.state import member_state, restore_member
 
 
 LEARNERS = ("per_agent", "fleet")
-"""How a team's members train: each on its own, or batched together (``mapping.fleet``)."""
+"""How a team's members train: each on its own, or batched together (``mapping.model.fleet``)."""
 
 
 class PlanError(ValueError):
@@ -78,10 +78,23 @@ class RoundPlan:
 
 @dataclass(frozen=True)
 class ChannelConfig:
-    """The links: success probability per message and an optional byte budget per agent."""
+    """The links: success probability per message and an optional budget per agent."""
 
     success_probability: float = 1.0
-    budget_bytes: float | None = None
+    """Chance that each message arrives (drawn per message from the team's seed)."""
+    budget_mb: float | None = None
+    """Megabytes each agent may send over the run (None: unlimited)."""
+
+    def __post_init__(self) -> None:
+        if not 0.0 <= self.success_probability <= 1.0:
+            raise ValueError(f"channel.success_probability must be in [0, 1], got {self.success_probability}")
+        if self.budget_mb is not None and not self.budget_mb >= 0:
+            raise ValueError(f"channel.budget_mb must be >= 0 or None, got {self.budget_mb}")
+
+    @property
+    def budget_bytes(self) -> float | None:
+        """The budget in bytes (the one place MB become bytes)."""
+        return None if self.budget_mb is None else self.budget_mb * 1e6
 
 
 class Team:
@@ -101,7 +114,7 @@ class Team:
             (``mapping.team.remote``; one process per agent, on this machine or a cluster), exchanging only
             serialised messages; the streams stay here. The members are then called side by side.
         learner: ``"per_agent"`` (each member trains on its own, on the worker threads) or ``"fleet"``
-            (``mapping.fleet``: every member's local and consistency iterations batched into one
+            (``mapping.model.fleet``: every member's local and consistency iterations batched into one
             computation per step, in the calling thread on its torch threads; the same maps to float
             tolerance; members in this process only). A fleet member's compute seconds count a share
             of the joint steps in proportion to its iterations.
@@ -257,7 +270,7 @@ class Team:
             done=self.done, agents=snapshots)
 
     def fleet_train(self, iterations: list[int], extras: list[ExtraLoss]) -> tuple[list[float], list[float]]:
-        """Every member's iterations batched (``mapping.fleet.fleet_train``) in the calling thread, on the
+        """Every member's iterations batched (``mapping.model.fleet.fleet_train``) in the calling thread, on the
         caller's torch threads; each member's last loss, and its share of the seconds (by its iterations)."""
         start = time.perf_counter()
         losses = fleet_train([m.mapper for m in self.members], iterations, extras)
@@ -278,7 +291,7 @@ class Team:
         return self.each_member(lambda m: m.surface_coverage(points, normals))
 
     def column_maps(self, grid) -> list:
-        """Per agent, its own map read on the columns of ``grid`` (``mapping.topdown.column_map``): what an
+        """Per agent, its own map read on the columns of ``grid`` (``mapping.model.topdown.column_map``): what an
         agent's observation may show of its map. Runs on the worker threads."""
         return self.each_member(lambda m: m.column_map(grid))
 

@@ -2,7 +2,7 @@
 received. Layout and channel meanings: ``policies.observation`` (the policies read it by those names).
 
 ``map`` is built here from the agent's snapshot (``mapping.team.AgentSnapshot``) and its own fields read on
-a fixed voxel grid over the room's box (``mapping.topdown``); ``comm`` from the snapshot's per-peer link
+a fixed voxel grid over the room's box (``mapping.model.topdown``); ``comm`` from the snapshot's per-peer link
 state. Ground truth never enters: ``ProbeRaster`` (the share of the observable ground-truth surface each
 cell's samples an agent's map reproduces) feeds ``state()`` for centralised critics only.
 """
@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from mapping.team import AgentSnapshot
-from mapping.topdown import ColumnGrid, ColumnMap
+from mapping.model.topdown import ColumnGrid, ColumnMap
 from policies.observation import AGENT_FEATURES, LINK_FEATURES, MAP_CHANNELS, age_feature
 
 OBSERVATION_CHANNELS = MAP_CHANNELS

@@ -77,9 +77,11 @@ the small `tiny` room). `num_agents`: 2-8 (default: the preset's). `preset`: one
 steps of about a second), `rl_tiny` (8 steps, for tests), `tiny`, `demo`, `fast`, `full` (the paper's).
 `seed`: the world's seed. `render_mode`: None or `rgb_array` (`human` is accepted and draws nothing:
 the env is headless). `comm_budget_mb`: megabytes each agent may send per episode. `reward`: `team` or
-`individual`. `max_cycles`: the horizon (alias of `horizon`). `overrides`: any `EnvConfig` field
-(`openmulti_env.environment.config`), e.g. `success_probability=0.5`, `comm_cost_per_mb=0.01`,
-`consistency="dinno"`, `map_size=96`, `threads=1`, `cache_dir=...`.
+`individual`. `max_cycles`: the horizon (alias of `horizon`). `overrides`: any field of the configuration
+tree (`openmulti_env.experiment.Experiment`, the one `openmulti run` writes as `config.yaml`), by its short
+spelling (e.g. `success_probability=0.5`, `comm_cost_per_mb=0.01`, `consistency="dinno"`, `map_size=96`,
+`threads=1`, `cache_dir=...`; `openmulti_env.experiment.overrides.ALIASES`) or by its dotted path with `__`
+for the dots (`team__exchange__float16=True`). `env.config` is the episode's whole tree.
 
 ### Version History
 * v0: first release (openmulti 0.1).
@@ -100,7 +102,8 @@ from mapping.perception import shared_text_encoder
 from mapping.runtime import torch_threads
 from mapping.team import Team
 from openmulti_env.environment.actions import ActionError, actions_to_plan
-from openmulti_env.environment.config import EnvConfig, env_config
+from openmulti_env.environment.config import env_config, env_workers
+from openmulti_env.experiment import Experiment
 from openmulti_env.environment.render import AGENT_COLOURS, agent_tile, compose, team_panel
 from openmulti_env.environment.observation import ProbeRaster, TeamObserver
 from openmulti_env.world.cache import cached_world
@@ -128,7 +131,7 @@ class OpenMultiParallelEnv(ParallelEnv, EzPickle):
             raise ValueError(f"max_cycles={max_cycles} and horizon={overrides['horizon']} disagree; give one")
         if max_cycles is not None:
             overrides["horizon"] = max_cycles
-        self.config: EnvConfig = env_config(preset, scene=scene, num_agents=num_agents, comm_budget_mb=comm_budget_mb,
+        self.config: Experiment = env_config(preset, scene=scene, num_agents=num_agents, comm_budget_mb=comm_budget_mb,
                                             reward=reward, **overrides)
         if render_mode is not None and render_mode not in RENDER_MODES + ("human",):
             raise ValueError(f"unknown render_mode {render_mode!r}; choose None or one of {list(RENDER_MODES)}")
@@ -141,7 +144,7 @@ class OpenMultiParallelEnv(ParallelEnv, EzPickle):
         n = self.config.num_agents
         self.possible_agents = [f"agent_{i}" for i in range(n)]
         self.agents: list[str] = []
-        size = self.config.map_size
+        size = self.config.env.map_size
         self._observation_space = spaces.Dict({
             "map": spaces.Box(0, 255, (size, size, len(MAP_CHANNELS)), np.uint8),
             "comm": spaces.Box(0.0, 1.0, (comm_size(n),), np.float32)})
@@ -170,7 +173,7 @@ class OpenMultiParallelEnv(ParallelEnv, EzPickle):
     def reset(self, seed: int | None = None, options: dict | None = None):
         """A fresh team on the env's world; ``seed`` fixes the episode. ``options`` are not used. Torch
         runs on ``threads`` threads inside reset and step only (the caller's setting is kept)."""
-        with torch_threads(self.config.threads):
+        with torch_threads(self.config.run.threads):
             return self._reset(seed)
 
     def _reset(self, seed: int | None):
@@ -180,17 +183,17 @@ class OpenMultiParallelEnv(ParallelEnv, EzPickle):
         episode_seed = int(self._episode_rng.integers(2**31 - 1))
         self._build_world()
         cfg = self.config
-        encoder = shared_text_encoder(name=cfg.text_encoder, persist=True)
-        streams = world_streams(self.world, episode_seed, cfg.segmentation_errors, text_encoder=encoder,
+        encoder = shared_text_encoder(name=cfg.perception.text_encoder, persist=True)
+        streams = world_streams(self.world, episode_seed, cfg.perception.segmentation_errors, text_encoder=encoder,
                                 render=self._frames.render)
         if self._vocabulary is None:
             self._vocabulary = world_vocabulary(self.world, encoder)
         if self.team is not None:  # freed here by reference counting: a team holds no reference cycles
             self.team.release()  # (tested), so no full garbage collection (130 ms a reset) is needed
             self.team = None
-        self.team = Team(streams, cfg.team_config(), self._vocabulary, seed=episode_seed,
-                         channel=cfg.channel_config(), device=cfg.device, workers=cfg.workers(),
-                         processes=cfg.agent_processes, learner=cfg.learner)
+        self.team = Team(streams, cfg.team, self._vocabulary, seed=episode_seed,
+                         channel=cfg.channel, device=cfg.run.device, workers=env_workers(cfg),
+                         processes=cfg.run.processes, learner=cfg.run.learner)
         self._snapshots = self.team.snapshots()
         self.agents = list(self.possible_agents)
         self.steps = 0
@@ -209,24 +212,23 @@ class OpenMultiParallelEnv(ParallelEnv, EzPickle):
         if self.world is not None:
             return
         cfg = self.config
-        self.world, self.last_cache_hit = cached_world(cfg.scene, self.world_seed, cfg.world_config(),
-                                                       cfg.cache_dir, cfg.cache_max_mb)
-        points, normals, ids = self.world.surface.sample_points(cfg.probe_points, seed=self.world_seed)
+        self.world, self.last_cache_hit = cached_world(cfg.scene, self.world_seed, cfg.world,
+                                                       cfg.env.cache_dir, cfg.env.cache_max_mb)
+        points, normals, ids = self.world.surface.sample_points(cfg.env.probe_points, seed=self.world_seed)
         self._probe_points, self._probe_normals = points, normals
         size = np.asarray(self.world.scene.size_m, float)
-        self._observer = TeamObserver(np.zeros(3), size, cfg.map_size,
-                                      None if cfg.comm_budget_mb is None else cfg.comm_budget_mb * 1e6)
+        self._observer = TeamObserver(np.zeros(3), size, cfg.env.map_size, cfg.channel.budget_bytes)
         self._grid = self._observer.grid
         ceiling = [inst.instance_id for inst in self.world.scene.instances if inst.category == "ceiling"]
         self._probes = ProbeRaster(self._grid, points, hidden=np.isin(ids, ceiling))
-        floor = np.zeros(cfg.map_size ** 2, np.uint8)
+        floor = np.zeros(cfg.env.map_size ** 2, np.uint8)
         floor[self._probes.flat] = 255
-        self._floor = floor.reshape(cfg.map_size, cfg.map_size)
+        self._floor = floor.reshape(cfg.env.map_size, cfg.env.map_size)
         self._vocabulary = None
-        self._frames = RenderCache(self.world, cfg.frame_cache_mb)
+        self._frames = RenderCache(self.world, cfg.env.frame_cache_mb)
 
     def step(self, actions: dict):
-        with torch_threads(self.config.threads):
+        with torch_threads(self.config.run.threads):
             return self._step(actions)
 
     def _step(self, actions: dict):
@@ -256,7 +258,7 @@ class OpenMultiParallelEnv(ParallelEnv, EzPickle):
         observations = {a: self._observe(i) for i, a in enumerate(self.agents)}
         t3 = time.perf_counter()
         infos = {a: self._info(i, report, 100.0 * gains[i]) for i, a in enumerate(self.agents)}
-        ended = self.team.done or (self.config.horizon is not None and self.steps >= self.config.horizon)
+        ended = self.team.done or (self.config.env.horizon is not None and self.steps >= self.config.env.horizon)
         terminations = {a: False for a in self.agents}
         truncations = {a: bool(ended) for a in self.agents}
         if ended:
@@ -271,11 +273,11 @@ class OpenMultiParallelEnv(ParallelEnv, EzPickle):
         n = len(self.possible_agents)
         mb = np.asarray(report.bytes_sent, float) / 1e6
         refused = np.asarray([snapshot.messages["over_budget"] for snapshot in report.agents], float)
-        own = gains - cfg.comm_cost_per_mb * mb - cfg.budget_penalty * refused
-        if cfg.reward == "individual":
+        own = gains - cfg.env.comm_cost_per_mb * mb - cfg.env.budget_penalty * refused
+        if cfg.env.reward == "individual":
             values = own
         else:
-            values = np.full(n, gains.mean() - (cfg.comm_cost_per_mb * mb.sum() + cfg.budget_penalty * refused.sum()) / n)
+            values = np.full(n, gains.mean() - (cfg.env.comm_cost_per_mb * mb.sum() + cfg.env.budget_penalty * refused.sum()) / n)
         return {a: float(values[i]) for i, a in enumerate(self.possible_agents)}
 
     # ---- observations, infos, state ----------------------------------------------------------------

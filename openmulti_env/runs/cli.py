@@ -14,19 +14,26 @@ from pathlib import Path
 
 import numpy as np
 
-from mapping.perception.geometric_segmenter import SEGMENTER_SETTINGS
 from mapping.perception.image_encoder import ImageEncoderError
 from mapping.perception.text_encoder import TextEncoderError
-from mapping.team.consistency import MISSING_EDGES
-from policies.scripted import parse_policy
+from openmulti_env.experiment import CONFIG_NAME, Experiment, experiment, read_config
+from openmulti_env.experiment.options import (TRAIN_DEST, add_dataclass_options, add_tree_options, normalise_argv,
+                                              tree_overrides, typed_overrides)
+from openmulti_env.presets import PRESET_NAMES, get_preset
+from openmulti_env.world.world import MAX_AGENTS
+from policies.train import TrainConfig
 
-RUN_PRESETS = ("tiny", "demo", "fast", "full", "rl_tiny", "rl_small", "rl")  # openmulti_env.presets.PRESET_NAMES (a test checks)
-MAX_AGENTS = 8  # openmulti_env.world.world.MAX_AGENTS (a test checks they agree)
-
-def check_policy(name: str) -> str:
-    """Validate a policy name (``policies.POLICY_FORMS``): PolicyError naming the problem."""
-    return parse_policy(name).name
-
+RUN_SHORT = ("scene", "agents", "policy", "seed", "out", "device", "alignment", "consistency", "missing_edges",
+             "no_cross_rendering", "comm_budget_mb", "float16", "changed_only", "threads", "workers", "holdout_every",
+             "processes", "learner", "no_evaluation", "clip_checkpoint", "perfect_masks", "data", "kind", "gt_mesh",
+             "frames", "intrinsics", "depth_scale", "segmenter")
+"""The short spellings ``openmulti run`` offers besides every ``--node.field`` (the README's)."""
+TRAIN_SHORT = ("agents", "reward", "comm_cost_per_mb", "comm_budget_mb", "horizon")
+"""The short spellings of the env's settings ``openmulti train`` offers."""
+RUN_HELP = """Every setting of a run is one configuration tree (a preset plus these options); the run writes it
+whole as OUT/config.yaml, and `openmulti run --config OUT/config.yaml --out NEW` repeats the run. Each field
+of the tree is an option --node.field (e.g. --team.exchange.float16, --team.consistency.rho 0.3); the common
+ones have the short spellings of the first group. The value in brackets is the `fast` preset's."""
 
 class _DefaultsShown(argparse.HelpFormatter):
     """Help that ends with the option's default, where it has one worth saying (not None or a flag's)."""
@@ -100,39 +107,31 @@ def cmd_run(args: argparse.Namespace) -> int:
     results table."""
     from mapping.pipeline.summary import results_table  # noqa: PLC0415
     from mapping.pipeline.runner import RunResult  # noqa: PLC0415
-    from openmulti_env.runs.run import run, run_data  # noqa: PLC0415
+    from openmulti_env.runs.run import run_experiment  # noqa: PLC0415
 
-    policy = check_policy(args.policy)
-    out = Path(args.out)
-    team_options = dict(device=args.device, alignment=args.alignment, clip_checkpoint=args.clip_checkpoint,
-                        comm_budget_mb=args.comm_budget_mb, consistency=args.consistency,
-                        missing_edges=args.missing_edges, cross_rendering=args.cross_rendering,
-                        float16=args.float16, changed_only=args.changed_only, threads=args.threads,
-                        workers=args.workers, processes=args.processes, holdout_every=args.holdout_every,
-                        learner=args.learner, evaluate=not args.no_evaluation)
-    what = f"scene {args.scene}" if args.data is None else f"data {args.data}"
-    print(f"[openmulti] {what}, {args.agents} agents, preset {args.preset}, seed {args.seed}, "
-          f"policy {policy}, alignment {args.alignment}, consistency {args.consistency}"
-          f"{'' if args.cross_rendering else ', no cross rendering'}")
-    if args.data is None:
-        if args.segmenter != "fixed":
-            raise ValueError("--segmenter is for --data without instance images; the simulator's masks come from "
-                             "its own error model (--perfect-masks turns it off)")
-        metrics = run(args.scene, args.agents, policy, args.preset, args.seed, out,
-                      segmentation_errors=not args.perfect_masks, **team_options)
-    else:
-        if args.perfect_masks:
-            raise ValueError("--perfect-masks is for --scene (the simulator's error model); with --data the masks "
-                             "are the data set's instance images or the geometric segmenter's")
-        metrics = run_data(args.data, args.agents, policy, args.preset, args.seed, out, kind=args.kind,
-                           gt_mesh=args.gt_mesh, frames=args.frames, intrinsics=args.intrinsics,
-                           depth_scale=args.depth_scale, segmenter=args.segmenter, **team_options)
+    tree = experiment_from_args(args)
+    out = Path(tree.run.out)
+    what = f"scene {tree.scene}" if tree.data.path is None else f"data {tree.data.path}"
+    print(f"[openmulti] {what}, {tree.num_agents} agents, preset {tree.preset}, seed {tree.seed}, "
+          f"policy {tree.run.policy}, alignment {'paper' if tree.team.alignment else 'none'}, consistency "
+          f"{tree.team.consistency.algorithm}{'' if tree.team.consistency.cross_rendering else ', no cross rendering'}")
+    metrics = run_experiment(tree)
     fields = set(RunResult.__dataclass_fields__) - {"extra"}
     result = RunResult(**{k: v for k, v in metrics.items() if k in fields},
                        extra={k: v for k, v in metrics.items() if k not in fields})
     print()
     print("\n".join(results_table(result, out)))
+    print(f"Settings: {out / CONFIG_NAME} (openmulti run --config {out / CONFIG_NAME} --out NEW repeats the run)")
     return 0
+
+
+def experiment_from_args(args: argparse.Namespace):
+    """The run's tree: ``--config``'s (or ``--preset``'s, ``fast`` by default) with the command line's overrides."""
+    if args.config and args.preset:
+        raise ValueError("give --config FILE or --preset NAME, not both (the file's tree names its preset)")
+    overrides = typed_overrides(tree_overrides(args), Experiment)
+    base = read_config(args.config) if args.config else None
+    return experiment(args.preset or "fast", overrides, base=base)
 
 
 def cmd_query(args: argparse.Namespace) -> int:
@@ -196,7 +195,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("scene", nargs="?", help="preset name, random:SEED or manifest path (none: list the presets)")
     p.add_argument("--agents", type=_agents, default=4, help="agents (one path each)")
     p.add_argument("--seed", type=int, default=0, help="layout and paths seed (0: the canonical room)")
-    p.add_argument("--preset", choices=RUN_PRESETS, default="fast", help="episode size (frames, image size)")
+    p.add_argument("--preset", choices=PRESET_NAMES, default="fast", help="episode size (frames, image size)")
     p.add_argument("--json", action="store_true", help="print JSON")
     p.add_argument("--render", metavar="DIR", help="write a top-down picture and a few frames per agent")
     p.add_argument("--export", metavar="DIR", help="write the world as an RGB-D data set (frames of all agents)")
@@ -205,72 +204,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_scenes)
 
     p = sub.add_parser("run", help="a multi-agent team run on one scene (--scene) or a real RGB-D data set (--data)",
-                       formatter_class=fmt)
-    p.add_argument("--scene", default="room0", help="scene preset (openmulti scenes lists them), random:SEED, or "
-                   "the path of a JSON/YAML manifest of your own meshes")
-    p.add_argument("--agents", type=_agents, default=4, help="agents in the team (each maps its own region)")
-    p.add_argument("--policy", default="always", help="communication policy: always, never, round_robin, budget "
-                   "(with --comm-budget-mb), every:K (everything every K-th round), at:R1,R2,... (everything on the listed "
-                   "rounds), rate:Q (each link with "
-                   "probability Q), bernoulli:P (always; each message arrives with probability P), novelty[:k=v,...] "
-                   "(reads the observations: policies/novelty.py), learned (the trained policy shipped with the "
-                   "package) or a trained policy file (.json beside its .safetensors)")
-    p.add_argument("--preset", choices=RUN_PRESETS, default="fast",
-                   help="episode size: tiny (smoke), demo (make demo), fast, full (the paper's), rl_tiny, rl_small, rl "
-                        "(the env's RL-sized ones)")
-    p.add_argument("--seed", type=int, default=0, help="one seed for layout, paths, segmentation errors, channel "
-                   "draws and network initialisation")
-    p.add_argument("--out", default="runs/demo", help="output folder (the same folder and settings resume a run)")
-    p.add_argument("--device", default="auto", help="cpu, cuda or auto (cuda when available)")
-    p.add_argument("--alignment", choices=("paper", "none"), default="paper",
-                   help="align arrived instances (paper, sec. III-C) or adopt each as a new one (none)")
-    p.add_argument("--consistency", choices=("consensus", "dinno", "dsgd", "none"), default="consensus",
-                   help="parameter consistency, eq. 12 (consensus = MACIM's)")
-    p.add_argument("--missing-edges", choices=MISSING_EDGES, default="skip",
-                   help="DiNNO and DSGD with a peer whose vector did not arrive this round: skip the edge (default) "
-                        "or use the last vector held (the stale form)")
-    p.add_argument("--no-cross-rendering", dest="cross_rendering", action="store_false",
-                   help="no render consistency on shared rays (eq. 13): the ablation")
-    p.add_argument("--comm-budget-mb", type=float, metavar="MB", help="bytes each agent may send over the run")
-    p.add_argument("--float16", action="store_true", help="send network vectors as float16")
-    p.add_argument("--changed-only", type=float, metavar="REL",
-                   help="skip instances whose parameters moved less than REL (relative L2) since last sent")
-    p.add_argument("--threads", type=int, help="torch threads (default: all cores, shared by the workers)")
-    p.add_argument("--workers", type=int,
-                   help="agents trained side by side on threads (default: one per core, 1 torch thread each; "
-                        "1 when --threads is given); results do not depend on it")
-    p.add_argument("--holdout-every", type=int, metavar="K",
-                   help="keep every K-th frame of each agent out of its map and report the map's depth error on "
-                        "those unseen views too (depth_heldout_* in metrics.json); K >= 2")
-    p.add_argument("--processes", choices=("ray",),
-                   help="ray: every agent maps in a process of its own (a Ray actor, here or on the cluster of "
-                        "RAY_ADDRESS), exchanging only serialised messages; the same maps on CPU. Needs "
-                        "pip install 'openmulti[ray]'")
-    p.add_argument("--learner", choices=("per_agent", "fleet"), default="per_agent",
-                   help="fleet: every agent's training steps batched into one computation per step (one large "
-                        "kernel on a GPU; pair with --threads on a CPU); the same maps to float tolerance")
-    p.add_argument("--no-evaluation", action="store_true",
-                   help="map only: rounds, bytes and the final checkpoint, no meshes or scores; the same command "
-                        "without it resumes after the last round and scores the maps")
-    p.add_argument("--clip-checkpoint", metavar="PATH",
-                   help="local open_clip checkpoint: masks get visual features (optional extra openmulti[clip])")
-    p.add_argument("--perfect-masks", action="store_true",
-                   help="segment without the front end's error model (no semantic / over- / under-segmentation errors)")
-    g = p.add_argument_group("real RGB-D data (instead of --scene; the team and the options above run on it, "
-                             "--perfect-masks aside: the masks are the data set's or the geometric segmenter's)")
-    g.add_argument("--data", metavar="DIR", help="a data set folder: Replica (vMAP or NICE-SLAM layout) or ScanNet, "
-                   "cut into --agents contiguous sequences")
-    g.add_argument("--kind", choices=("auto", "replica", "nice_slam", "scannet"), default="auto",
-                   help="data set layout (auto: detected from the folder)")
-    g.add_argument("--gt-mesh", metavar="PLY", help="ground-truth mesh (else a TSDF reference of the frames)")
-    g.add_argument("--frames", metavar="A:B:S", help="frames A..B-1 every S-th, before the split into agents")
-    g.add_argument("--intrinsics", metavar="FX,FY,CX,CY", help="override the data set's camera")
-    g.add_argument("--depth-scale", type=float, metavar="UNITS", help="raw depth units per metre (Replica 1000 "
-                   "vMAP / 6553.5 NICE-SLAM, ScanNet 1000; default: the layout's or cam_params.json)")
-    g.add_argument("--segmenter", choices=tuple(SEGMENTER_SETTINGS), default="fixed",
-                   help="the geometric segmenter's thresholds, for data without instance images: fixed, or "
-                   "range_aware (planes and clusters widen with a structured-light sensor's noise at depth; better "
-                   "on recordings within about 3 m, worse beyond: docs/real_data.md)")
+                       formatter_class=fmt, description=RUN_HELP,
+                       usage="openmulti run [--preset P | --config FILE] [--scene S | --data DIR] [--agents N] "
+                             "[--policy P] [--seed K] [--out DIR] [--NODE.FIELD VALUE ...]")
+    p.add_argument("--config", metavar="FILE", help="a configuration tree (a run's config.yaml, a .json, or a run's "
+                   "metrics.json): repeat that run (give --out NEW), the options below change it")
+    p.add_argument("--preset", choices=PRESET_NAMES, help="the tree to start from: tiny (smoke), demo (make demo), "
+                   "fast (default), full (the paper's), rl_tiny, rl_small, rl (the env's RL-sized ones)")
+    add_tree_options(p, Experiment, shown=get_preset("fast"), short=RUN_SHORT, skip=("preset", "env"))
     p.set_defaults(func=cmd_run)
 
     p = sub.add_parser("query", help="open-vocabulary instance retrieval on a finished run", formatter_class=fmt)
@@ -292,7 +233,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--scenes", nargs="+", metavar="S", help="scenes of the grid (default: room0; tradeoff: room0 "
                    "office0 room2)")
     p.add_argument("--seeds", nargs="+", type=int, default=[0], metavar="K", help="seeds of the grid")
-    p.add_argument("--preset", choices=RUN_PRESETS, default="fast", help="episode size of every run")
+    p.add_argument("--preset", choices=PRESET_NAMES, default="fast", help="episode size of every run")
     p.add_argument("--agents", type=_agents, default=4, help="agents of the team methods (single_agent has 1)")
     p.add_argument("--out", default="runs/reproduce", metavar="DIR",
                    help="folder of the tables, rows and runs (started again, finished runs are reused; the same "
@@ -323,37 +264,26 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_cache)
 
     p = sub.add_parser("train", help="learn a shared communication policy with PPO (SB3, or RLlib on Ray) on the env",
-                       formatter_class=_RawDefaults, description=TRAIN_HELP)
+                       formatter_class=_RawDefaults, description=TRAIN_HELP,
+                       usage="openmulti train [--preset P | --config FILE] [--scenes S ...] [--env-steps N] "
+                             "[--workers N] [--backend sb3|rllib] [--out DIR] [--FIELD VALUE ...] [--NODE.FIELD VALUE ...]")
     p.add_argument("--out", default="runs/train", help="folder of the run: checkpoint (resumed), log.csv, "
                    "learning_curve.png, best.json/.safetensors and latest.json/.safetensors")
-    p.add_argument("--preset", choices=RUN_PRESETS, default="rl_small", help="episode size of the env")
-    p.add_argument("--agents", type=_agents, default=4, help="team size (a policy runs on teams of this size)")
+    p.add_argument("--config", metavar="FILE", help="the env's configuration tree (a run's config.yaml or a .json): "
+                   "every episode's settings; the options below change it")
+    p.add_argument("--preset", choices=PRESET_NAMES, help="the env's preset (default rl_small)")
     p.add_argument("--scenes", nargs="+", metavar="SCENE", help="training worlds (default: random:100 .. random:115; "
                    "room0, office0 and room2 are held out for the trade-off table)")
     p.add_argument("--episodes-per-world", type=int, default=2, help="episodes before a worker moves to its next world")
-    p.add_argument("--env-steps", type=int, default=20000, help="env steps (team rounds) over all workers")
-    p.add_argument("--workers", type=int, default=2, help="worker processes, each stepping its own env (RLlib: env "
-                   "runners)")
     p.add_argument("--backend", choices=("sb3", "rllib"), default="sb3",
                    help="sb3: Stable-Baselines3 PPO in worker processes here; rllib: RLlib's multi-agent PPO, its env "
                         "runners on a local Ray or on --ray ADDRESS (pip install 'openmulti[ray]')")
     p.add_argument("--ray", metavar="ADDRESS", help="with --backend rllib: the Ray cluster's address (ray://HOST:10001, "
                    "HOST:6379 or auto; default: a Ray started on this machine)")
-    p.add_argument("--reward", choices=("team", "individual"), default="team")
-    p.add_argument("--comm-cost-per-mb", type=float, default=0.0025, help="reward cost per megabyte sent (the team's "
-                   "MB over the team size)")
-    p.add_argument("--comm-budget-mb", type=float, metavar="MB", help="megabytes each agent may send per episode")
-    p.add_argument("--horizon", type=int, help="steps per episode (default: until the paths end)")
-    p.add_argument("--action-form", choices=("entries", "round"), default="entries",
-                   help="entries: a send decision per peer and half (parameters, rays); round: one per agent and "
-                   "round, everything to every peer or nothing (sb3 backend)")
-    p.add_argument("--n-steps", type=int, default=32, help="PPO: rounds per worker and agent between updates")
-    p.add_argument("--batch-size", type=int, default=64, help="PPO minibatch")
-    p.add_argument("--learning-rate", type=float, default=3e-4, help="PPO learning rate")
-    p.add_argument("--ent-coef", type=float, default=0.01, help="PPO entropy bonus")
-    p.add_argument("--chunk-env-steps", type=int, default=512, help="checkpoint, policy files and log every this many "
-                   "env steps")
-    p.add_argument("--seed", type=int, default=0)
+    add_dataclass_options(p, TrainConfig, prefix=TRAIN_DEST, title="PPO and the run's size (policies.train.TrainConfig)",
+                          also={"env_steps": "total_env_steps"})
+    add_tree_options(p, Experiment, shown=get_preset("rl_small"), short=TRAIN_SHORT,
+                     skip=("preset", "scene", "seed", "run", "data", "global_map"))
     p.set_defaults(func=cmd_train)
     return parser
 
@@ -380,9 +310,24 @@ On a cluster: RLlib's PPO with one env runner per core (the same settings, run f
 docs/ray.md). --backend rllib alone runs its env runners on a Ray started on this machine."""
 
 
+def unknown_option_message(parser: argparse.ArgumentParser, command: str, unknown: list[str]) -> str:
+    """What the command line gave that no option takes, and the nearest options."""
+    import difflib  # noqa: PLC0415
+
+    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction)).choices[command]
+    given = next((u for u in unknown if u.startswith("-")), unknown[0]).split("=", 1)[0]
+    near = difflib.get_close_matches(given, sorted(sub._option_string_actions), n=3, cutoff=0.6)
+    return f"unknown option {given!r}" + (f"; did you mean {', '.join(near)}?" if near else
+                                          f" (openmulti {command} --help lists them)")
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the console script."""
-    args = build_parser().parse_args(argv)
+    parser = build_parser()
+    args, unknown = parser.parse_known_args(normalise_argv(sys.argv[1:] if argv is None else list(argv)))
+    if unknown:
+        print(f"openmulti {args.command}: error: {unknown_option_message(parser, args.command, unknown)}", file=sys.stderr)
+        return 2
     try:
         return int(args.func(args))
     except (ValueError, FileNotFoundError, KeyError, TextEncoderError, ImageEncoderError) as exc:

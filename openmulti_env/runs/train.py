@@ -114,9 +114,58 @@ def check_training_scenes(scenes: tuple[str, ...]) -> None:
                          f"{REPORTED_SCENES}; train on others (random:SEED rooms by default)")
 
 
+TRAIN_COMM_COST_PER_MB = 0.0025
+"""The reward's cost per MB when training, unless given (the env's own default is 0: ``always`` is then optimal
+by construction, and a policy learns nothing about bytes)."""
+TRAIN_PRESET = "rl_small"
+
+
+def train_config(args) -> "TrainConfig":
+    """PPO's settings from the command line (``TrainConfig``'s defaults where none was given)."""
+    from openmulti_env.experiment.options import TRAIN_DEST, tree_overrides, typed_overrides  # noqa: PLC0415
+    from openmulti_env.experiment.overrides import from_mapping  # noqa: PLC0415
+    from policies.train import TrainConfig  # noqa: PLC0415
+
+    return from_mapping(TrainConfig, typed_overrides(tree_overrides(args, TRAIN_DEST), TrainConfig))
+
+
+def env_settings(args) -> tuple[dict, "Experiment"]:
+    """The env's keywords of every training episode (``parallel_env``'s, dotted paths as ``a__b``) and the tree
+    they give (for the record): ``--config``'s tree or ``--preset``'s, with the command line's overrides."""
+    from openmulti_env.environment.config import env_config  # noqa: PLC0415
+    from openmulti_env.experiment import Experiment, read_config  # noqa: PLC0415
+    from openmulti_env.experiment.options import tree_overrides, typed_overrides  # noqa: PLC0415
+
+    if getattr(args, "config", None) and getattr(args, "preset", None):
+        raise ValueError("give --config FILE or --preset NAME, not both (the file's tree names its preset)")
+    overrides = typed_overrides(tree_overrides(args), Experiment)
+    overrides.setdefault("env.comm_cost_per_mb", TRAIN_COMM_COST_PER_MB)
+    kwargs = {k.replace(".", "__"): v for k, v in overrides.items()}
+    if getattr(args, "config", None):
+        base = read_config(args.config)
+        kwargs = {"preset": base.preset, "config": base, **kwargs}
+    else:
+        kwargs = {"preset": getattr(args, "preset", None) or TRAIN_PRESET, **kwargs}
+    return kwargs, env_config(**kwargs)
+
+
+SUMMARISED = {"world__num_agents", "env__reward", "env__comm_cost_per_mb", "channel__budget_mb", "env__horizon"}
+
+
+def env_summary(tree, env_kwargs: dict) -> dict:
+    """The env's settings as a training record has said them since the first runs (a run folder resumes only
+    under the same), and any other override given."""
+    summary = {"preset": tree.preset, "num_agents": tree.num_agents, "reward": tree.env.reward,
+               "comm_cost_per_mb": tree.env.comm_cost_per_mb, "comm_budget_mb": tree.channel.budget_mb,
+               **({"horizon": tree.env.horizon} if tree.env.horizon else {})}
+    others = {k: v for k, v in env_kwargs.items() if k not in SUMMARISED | {"preset", "config"}}
+    return {**summary, **({"overrides": others} if others else {})}
+
+
 def train_command(args) -> int:
     """``openmulti train``: build the env factory and the record, train, say where the policy is."""
-    from policies.train import TrainConfig, train  # noqa: PLC0415
+    from policies.train import train  # noqa: PLC0415
+    from openmulti_env.experiment import tree_record  # noqa: PLC0415
 
     backend = getattr(args, "backend", "sb3")
     if getattr(args, "ray", None) and backend != "rllib":
@@ -130,22 +179,19 @@ def train_command(args) -> int:
             raise ValueError(f"openmulti train --backend {backend} needs {module}: pip install '{extra}' (make setup "
                              "installs it)") from None
 
-    action_form = getattr(args, "action_form", "entries")
-    if action_form != "entries" and backend == "rllib":
-        raise ValueError(f"--action-form {action_form} trains with the sb3 backend only (RLlib's module draws one "
+    config = train_config(args)
+    if config.action_form != "entries" and backend == "rllib":
+        raise ValueError(f"--action-form {config.action_form} trains with the sb3 backend only (RLlib's module draws one "
                          "Bernoulli per action entry)")
     scenes = tuple(args.scenes) if args.scenes else DEFAULT_TRAIN_SCENES
     check_training_scenes(scenes)
-    env_kwargs = {"preset": args.preset, "num_agents": args.agents, "reward": args.reward,
-                  "comm_cost_per_mb": args.comm_cost_per_mb, "comm_budget_mb": args.comm_budget_mb,
-                  **({"horizon": args.horizon} if args.horizon else {})}
-    factory = WorkerEnvs(scenes, args.workers, args.episodes_per_world, env_kwargs)
-    config = TrainConfig(total_env_steps=args.env_steps, workers=args.workers, n_steps=args.n_steps,
-                         batch_size=args.batch_size, learning_rate=args.learning_rate, ent_coef=args.ent_coef,
-                         seed=args.seed, chunk_env_steps=args.chunk_env_steps, action_form=action_form)
+    env_kwargs, tree = env_settings(args)
+    factory = WorkerEnvs(scenes, config.workers, args.episodes_per_world, env_kwargs)
+    cost = tree.env.comm_cost_per_mb
     record = {"command": "openmulti train " + " ".join(shlex.quote(a) for a in sys.argv[2:]), "scenes": list(scenes),
-              "env": env_kwargs, "title": f"{args.preset}, {args.agents} agents, cost {args.comm_cost_per_mb}/MB"
-              f"{', round form' if action_form == 'round' else ''}"}
+              "env": env_summary(tree, env_kwargs), "experiment": tree_record(tree),
+              "title": f"{tree.preset}, {tree.num_agents} agents, cost {cost}/MB"
+              f"{', round form' if config.action_form == 'round' else ''}"}
     if backend == "rllib":
         from policies.train_rllib import train_rllib  # noqa: PLC0415
 

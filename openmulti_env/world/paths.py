@@ -28,7 +28,7 @@ from mapping.evaluate.visibility import visibility_matrix
 from openmulti_env.world.visibility import ObservableSurface
 
 
-@dataclass
+@dataclass(frozen=True)
 class PathConfig:
     """How agents move and look."""
 

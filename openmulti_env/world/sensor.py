@@ -19,7 +19,7 @@ OPENCV_TO_OPENGL = np.diag([1.0, -1.0, -1.0, 1.0])
 REPLICA_HFOV_DEG = 90.0
 
 
-@dataclass
+@dataclass(frozen=True)
 class SensorConfig:
     """What the camera sees and how its depth is corrupted."""
 

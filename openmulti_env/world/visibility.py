@@ -19,7 +19,7 @@ from mapping.evaluate.visibility import visibility_matrix
 from openmulti_env.world.scene import Scene
 
 
-@dataclass
+@dataclass(frozen=True)
 class FreeSpaceConfig:
     """Where the virtual cameras of the culling (and the agents' candidate viewpoints) may stand."""
 

@@ -25,11 +25,12 @@ SINGLE_AGENT_REGIONS = 4
 MAX_AGENTS = 8
 
 
-@dataclass
+@dataclass(frozen=True)
 class WorldConfig:
     """Everything that shapes the simulated world, apart from the scene name and seed."""
 
     num_agents: int = 4
+    """Agents in the team, one path each (each maps its own region)."""
     path: PathConfig = field(default_factory=PathConfig)
     sensor: SensorConfig = field(default_factory=SensorConfig)
     free_space: FreeSpaceConfig = field(default_factory=FreeSpaceConfig)

@@ -69,7 +69,7 @@ def published_map_identity(method: str) -> dict:
     if METHODS[method].global_form != "published":
         return {}
     from mapping.pipeline.records import settings_record  # noqa: PLC0415
-    from mapping.sdf_loss import SdfConfig  # noqa: PLC0415
+    from mapping.model.sdf_loss import SdfConfig  # noqa: PLC0415
 
     return {"published_map": settings_record(SdfConfig())}
 
@@ -100,7 +100,9 @@ def library_defaults(preset: str) -> dict:
 
 def row_from_metrics(spec: RunSpec, metrics: dict) -> dict:
     """One table row from a run's ``metrics.json``: the means over agents, bytes and time per round."""
-    mean, n = metrics["mean"], max(metrics["config"]["agents"], 1)
+    from openmulti_env.experiment.files import recorded_num_agents  # noqa: PLC0415
+
+    mean, n = metrics["mean"], max(recorded_num_agents(metrics["config"]), 1)
     rounds = max(metrics["rounds"], 1)
     per_round = [b / n for b in metrics["bytes_per_round"]]
     is_global = METHODS[spec.method].global_map

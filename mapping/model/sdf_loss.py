@@ -41,19 +41,31 @@ class SdfConfig:
     rays: int = 200
     """Rays per step (``n_rays``)."""
     n_stratified: int = 22
+    """Stratified samples per ray between the near bound and the surface (``n_strat_samples``)."""
     n_surface: int = 5
     """The surface sample itself and four around it."""
     min_depth_m: float = 0.07
+    """Near bound of the stratified samples (``min_depth``)."""
     behind_surface_m: float = 0.1
+    """How far behind the measured surface the stratified samples reach (``dist_behind_surf``)."""
     surface_std_m: float = 0.1
+    """Spread of the samples around the surface (``surface_samples_offset``)."""
     truncation_m: float = 0.2956502
+    """Truncation distance of the SDF supervision (``trunc_distance``)."""
     truncation_weight: float = 3.3834402
+    """Weight of the truncated-SDF loss near the surface (``trunc_weight``)."""
     free_space_factor: float = 5.0
+    """Steepness of the free-space loss beyond the truncation (``free_space_factor``)."""
     loss_cap: float = 2.0
+    """Upper bound of the free-space loss per sample (``max_loss``)."""
     eikonal_weight: float = 0.0268
+    """Weight of the eikonal term (``eik_weight``)."""
     eikonal_apply_m: float = 0.1
+    """The eikonal term applies to samples at least this far from the surface (``eik_apply_dist``)."""
     lr: float = 0.0013
+    """Adam learning rate (``learning_rate``)."""
     weight_decay: float = 0.012
+    """Adam weight decay (``weight_decay``)."""
     iterations_first: int = 200
     """The first frame is trained on this many iterations (``iters_first``), ..."""
     iterations_per_frame: int = 3

@@ -19,7 +19,7 @@ from torch import Tensor, nn
 from mapping.runtime import same_device
 
 if TYPE_CHECKING:  # the bank builds its default frames here: a runtime import would be circular
-    from mapping.field import InstanceFieldBank
+    from mapping.model.field import InstanceFieldBank
 
 
 def frame_for_box(bound_min: Tensor, bound_max: Tensor, margin: float = 1.0, min_half_m: float = 0.0

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mapping.bounds import InstanceBound
+from mapping.model.bounds import InstanceBound
 
 
 @dataclass

@@ -1,13 +1,13 @@
 """Instance-level implicit field (paper eq. 5): one small vMAP MLP F_i(x) -> (c, o) per instance,
 all instances of a bank evaluated and trained as ONE batched computation.
 
-The network and why it is evaluated with stacked matmuls: ``mapping.instance_mlp``.
+The network and why it is evaluated with stacked matmuls: ``mapping.model.instance_mlp``.
 
-Why a fixed frame per instance (``mapping.instance_frames``): the network sees
+Why a fixed frame per instance (``mapping.model.instance_frames``): the network sees
 ``u = (x - frame_centre) / frame_half``, not the box, so a growing box does not stretch what it
 learned, and agents sharing a frame hold parameter vectors of the same function (eq. 12, adoption).
 
-Why one flat (N, D) parameter: see ``mapping.instance_params``. The forward splits the rows into
+Why one flat (N, D) parameter: see ``mapping.model.instance_params``. The forward splits the rows into
 per-layer views (one autograd split, whose backward writes all gradients into one (N, D) buffer).
 ``add_instances`` replaces the parameter tensor: always read ``bank.params`` afresh.
 """
@@ -21,10 +21,10 @@ from typing import Callable, NamedTuple, Sequence
 import torch
 from torch import Tensor, nn
 
-from mapping.encoding import encode_positions, icosahedron_directions
-from mapping.instance_frames import frame_for_box
-from mapping.instance_mlp import batched_mlp
-from mapping.instance_params import init_instance_params, param_layout
+from mapping.model.encoding import encode_positions, icosahedron_directions
+from mapping.model.instance_frames import frame_for_box
+from mapping.model.instance_mlp import batched_mlp
+from mapping.model.instance_params import init_instance_params, param_layout
 from mapping.runtime import resolve_device
 
 
@@ -130,7 +130,7 @@ class InstanceFieldBank(nn.Module):
         return list(range(start, start + k))
 
     def network_layout(self) -> list[tuple[str, tuple[int, ...]]]:
-        """Names and shapes of one row's parameters (vMAP's network; ``mapping.sdf_field`` overrides it)."""
+        """Names and shapes of one row's parameters (vMAP's network; ``mapping.model.sdf_field`` overrides it)."""
         return param_layout(self.config.hidden_width)
 
     def initial_params(self, k: int, generator: torch.Generator | None = None) -> Tensor:
@@ -297,7 +297,7 @@ def query_block(counts: Tensor, block_size: int = 4096) -> int:
     """Points per batch entry for instances holding ``counts`` points: the power of two from 64 (or the
     largest count, or ``block_size``, when smaller) that pads the fewest points, each entry counted as
     ``BLOCK_OVERHEAD_POINTS`` more. One block as large as the largest instance padded every small
-    instance to its size: 4x the points on a map's column grid (``mapping.topdown``), 2-3x its time.
+    instance to its size: 4x the points on a map's column grid (``mapping.model.topdown``), 2-3x its time.
     Every point's value is the same whatever the block (tested); used without autograd only."""
     live = counts[counts > 0]
     if len(live) == 0:

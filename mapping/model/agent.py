@@ -16,20 +16,20 @@ import numpy as np
 import torch
 import trimesh
 
-from mapping.agent_config import MappingConfig
-from mapping.bounds import InstanceBound
-from mapping.checkpoint import load_checkpoint, save_checkpoint
+from mapping.model.agent_config import MappingConfig
+from mapping.model.bounds import InstanceBound
+from mapping.model.checkpoint import load_checkpoint, save_checkpoint
 from mapping.data import Frame, Intrinsics
 from mapping.evaluate import extract_instance_mesh
-from mapping.field import OBJECT_FIELD, STRUCTURE_FIELD, FieldOutput, InstanceFieldBank, LiveRows
-from mapping.instance_frames import refit_frames
-from mapping.instances import ExportedInstance, InstanceFrame, InstanceSlot
-from mapping.optim import AdamConfig, StackedAdam
-from mapping.keyframes import InstanceRays, KeyframeBuffer
-from mapping.losses import data_loss, free_space_loss
-from mapping.sdf_field import SdfBatch, SdfFieldBank, sdf_batch
+from mapping.model.field import OBJECT_FIELD, STRUCTURE_FIELD, FieldOutput, InstanceFieldBank, LiveRows
+from mapping.model.instance_frames import refit_frames
+from mapping.model.instances import ExportedInstance, InstanceFrame, InstanceSlot
+from mapping.model.optim import AdamConfig, StackedAdam
+from mapping.model.keyframes import InstanceRays, KeyframeBuffer
+from mapping.model.losses import data_loss, free_space_loss
+from mapping.model.sdf_field import SdfBatch, SdfFieldBank, sdf_batch
 from mapping.runtime import flushed_denormals, resolve_device
-from mapping.render import (CompositeConfig, CompositeRender, RayBundle, RaySamples, ray_aabb, render_image,
+from mapping.model.render import (CompositeConfig, CompositeRender, RayBundle, RaySamples, ray_aabb, render_image,
                             render_occupancy, sample_along_rays)
 
 
@@ -240,7 +240,7 @@ class MappingAgent:
     def training_batches(self) -> list[TrainingBatch | SdfBatch]:
         """One step's rays and samples per bank (the keyframe rays of every trainable instance, samples
         inside its box): what ``data_loss`` evaluates the field on, apart so that a fleet can evaluate
-        every agent's batches in one computation (``mapping.fleet``). A MACIM scene network gets an
+        every agent's batches in one computation (``mapping.model.fleet``). A MACIM scene network gets an
         ``SdfBatch`` per row instead."""
         batches: list[TrainingBatch | SdfBatch] = []
         for name, bank in self.banks.items():
@@ -267,7 +267,7 @@ class MappingAgent:
         return batches
 
     def sdf_batch(self, name: str, bank: SdfFieldBank, iid: int) -> SdfBatch | None:
-        """MACIM's samples of one step for a scene network (``mapping.sdf_field.sdf_batch``)."""
+        """MACIM's samples of one step for a scene network (``mapping.model.sdf_field.sdf_batch``)."""
         rays = self.keyframes.sample([iid], bank.sdf_config.rays, 1.0, self.rng)
         return sdf_batch(name, self.slots[iid].row, rays, bank.sdf_config, self.generator)
 

@@ -8,9 +8,9 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from mapping.encoding import encode_positions
-from mapping.field import FieldOutput, InstanceFieldBank
-from mapping.instance_mlp import occupancy_logit
+from mapping.model.encoding import encode_positions
+from mapping.model.field import FieldOutput, InstanceFieldBank
+from mapping.model.instance_mlp import occupancy_logit
 
 
 def looped_forward(bank: InstanceFieldBank, points: Tensor, with_colour: bool = True) -> FieldOutput:

@@ -6,16 +6,16 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 
 from mapping.config_fields import NEUTRAL_DEFAULT
-from mapping.losses import DataLossWeights
-from mapping.render import SamplerConfig
-from mapping.sdf_loss import SdfConfig
+from mapping.model.losses import DataLossWeights
+from mapping.model.render import SamplerConfig
+from mapping.model.sdf_loss import SdfConfig
 
 
 FREE_SPACE_RAYS = ("box2d", "crossing")
 """Where an instance's free-space rays come from (``MappingConfig.free_space_rays``)."""
 
 
-@dataclass
+@dataclass(frozen=True)
 class MappingConfig:
     """How one agent maps (vMAP's values unless said otherwise)."""
 
@@ -66,8 +66,8 @@ class MappingConfig:
     """(centre x, y, z, half-size) given to every new instance instead of a frame from its first box:
     the scene box of a global map (``mapping.team.global_map``), fixed so that it is never refit."""
     structure_sdf: SdfConfig | None = field(default=None, metadata=NEUTRAL_DEFAULT)
-    """Make the structure bank MACIM's scene SDF network, trained with its losses (``mapping.sdf_field``,
-    ``mapping.sdf_loss``): the published form of the global baselines. None: vMAP's occupancy networks."""
+    """Make the structure bank MACIM's scene SDF network, trained with its losses (``mapping.model.sdf_field``,
+    ``mapping.model.sdf_loss``): the published form of the global baselines. None: vMAP's occupancy networks."""
     iterations_first_keyframe: int = field(default=0, metadata=NEUTRAL_DEFAULT)
     """Extra local iterations in the round of an agent's first keyframe (MACIM: 200 on its first frame)."""
     iterations_after_stream: int = field(default=0, metadata=NEUTRAL_DEFAULT)

@@ -14,7 +14,7 @@ import torch
 from torch import Tensor
 from torch.optim.adam import adam as _functional_adam
 
-from mapping.field import InstanceFieldBank
+from mapping.model.field import InstanceFieldBank
 
 
 @dataclass(frozen=True)

@@ -13,7 +13,7 @@ import torch
 from torch import Tensor
 
 from mapping.config_fields import NEUTRAL_DEFAULT
-from mapping.render import RenderedRays
+from mapping.model.render import RenderedRays
 
 DEPTH_UNCERTAINTY_EPS = 1e-4
 """vMAP's depth weight 1 / (sqrt(var) + 1e-4): bounded at 1e4 where the rendered depth is certain."""

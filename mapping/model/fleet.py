@@ -20,8 +20,8 @@ from typing import Callable, Sequence
 
 import torch
 
-from mapping.agent import MappingAgent, SdfBatch, TrainingBatch
-from mapping.field import FieldOutput
+from mapping.model.agent import MappingAgent, SdfBatch, TrainingBatch
+from mapping.model.field import FieldOutput
 from mapping.runtime import flushed_denormals
 
 ExtraLoss = Callable[[], torch.Tensor] | None

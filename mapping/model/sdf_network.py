@@ -13,7 +13,7 @@ to a signed distance, not an occupancy. Read from ``BIT-DYN/MACIM`` (``mocim/mod
 
 Xavier-normal weights and PyTorch's default biases, as theirs. Stored as one flat row per agent, so the
 channel, eq. 12 and DiNNO treat it like any instance network; the skip layer's encoding rows ride beside
-the first layer's in one (E, 2W) matmul, as ``mapping.instance_params`` does for vMAP's.
+the first layer's in one (E, 2W) matmul, as ``mapping.model.instance_params`` does for vMAP's.
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ import math
 import torch
 from torch import Tensor
 
-from mapping.encoding import N_BANDS, N_DIRECTIONS
+from mapping.model.encoding import N_BANDS, N_DIRECTIONS
 
 SDF_ENCODING_DIM = 3 + 2 * N_DIRECTIONS * N_BANDS
 """E = 255: sine and cosine of 6 bands on 21 axes, and the scaled coordinates."""

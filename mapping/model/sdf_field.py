@@ -1,10 +1,10 @@
-"""A bank of MACIM scene networks (``mapping.sdf_network``): an ``InstanceFieldBank`` whose rows are signed
+"""A bank of MACIM scene networks (``mapping.model.sdf_network``): an ``InstanceFieldBank`` whose rows are signed
 distance functions, so that the agent, the channel, eq. 12, DiNNO, meshing and rendering take them as
 they take vMAP's networks.
 
 Its occupancy is sigmoid(-sharpness * sdf): 0.5 on the zero level set, so marching cubes at 0.5 gives
 the SDF's surface; training reads the signed distance itself (``sdf``) with MACIM's losses
-(``mapping.sdf_loss``). It has no colour head: colour queries return mid grey.
+(``mapping.model.sdf_loss``). It has no colour head: colour queries return mid grey.
 """
 
 from __future__ import annotations
@@ -14,11 +14,11 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from mapping.field import FieldConfig, InstanceFieldBank
-from mapping.instance_mlp import LOGIT_LIMIT
-from mapping.keyframes import InstanceRays
-from mapping.sdf_loss import SdfConfig, SdfSamples, sdf_samples, sdf_step_loss
-from mapping.sdf_network import init_sdf_params, sdf_encoding, sdf_mlp, sdf_param_layout
+from mapping.model.field import FieldConfig, InstanceFieldBank
+from mapping.model.instance_mlp import LOGIT_LIMIT
+from mapping.model.keyframes import InstanceRays
+from mapping.model.sdf_loss import SdfConfig, SdfSamples, sdf_samples, sdf_step_loss
+from mapping.model.sdf_network import init_sdf_params, sdf_encoding, sdf_mlp, sdf_param_layout
 
 GREY = 0.5
 
@@ -26,7 +26,7 @@ GREY = 0.5
 @dataclass
 class SdfBatch:
     """A MACIM scene network's part of a training step (``MappingConfig.structure_sdf``): the samples of
-    its rays with valid depth, and their distance bounds (``mapping.sdf_loss``)."""
+    its rays with valid depth, and their distance bounds (``mapping.model.sdf_loss``)."""
 
     bank: str
     row: int
@@ -68,7 +68,7 @@ class SdfFieldBank(InstanceFieldBank):
         return self.signed_distance_unit(self.params.index_select(0, rows), self.to_unit(points, rows))
 
     def batch_loss(self, batch: SdfBatch) -> Tensor:
-        """MACIM's loss of one step (``mapping.sdf_loss.sdf_step_loss``) on the batch's row."""
+        """MACIM's loss of one step (``mapping.model.sdf_loss.sdf_step_loss``) on the batch's row."""
         rows = torch.tensor([batch.row], device=self.device)
         return sdf_step_loss(lambda points: self.sdf(points.reshape(1, -1, 3), rows).reshape(points.shape[:-1]),
                              batch.samples, self.sdf_config)

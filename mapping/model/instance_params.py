@@ -2,7 +2,7 @@
 
 Why one flat row per instance: a bank holds N instances as one (N, D) parameter, so sending an
 instance between agents, the parameter-consistency loss (eq. 12) and DiNNO/DSGD mixing are row
-operations, growth is a row concatenation, and Adam is one fused pass (``mapping.field``).
+operations, growth is a row concatenation, and Adam is one fused pass (``mapping.model.field``).
 """
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ import math
 import torch
 from torch import Tensor
 
-from mapping.encoding import COLOUR_INPUT_DIM, GEOMETRY_INPUT_DIM
+from mapping.model.encoding import COLOUR_INPUT_DIM, GEOMETRY_INPUT_DIM
 
 
 def param_layout(width: int) -> list[tuple[str, tuple[int, ...]]]:

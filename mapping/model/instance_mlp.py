@@ -15,7 +15,7 @@ Linear to the same batched matmuls plus its own batching overhead, and cannot me
 2-core CPU its forward + backward took 1.15-1.4x as long as the hand-batched form, and a Python loop
 over instances (one module and one AdamW each) 1.2-18x as long as the whole batched step
 (``benchmarks/bench_field.py`` measures all three). The layers are stored split and merged for speed
-(see ``mapping.instance_params.param_layout``): the first layer and the skip layer's encoding rows
+(see ``mapping.model.instance_params.param_layout``): the first layer and the skip layer's encoding rows
 are one (87, 2W) matmul; the occupancy output rides as one extra column of the colour layer (a
 1-column matmul runs at 2-3 GFLOP/s); and no gradient is computed for the encodings (vMAP's
 concatenated skip and colour inputs would waste 12 % of the backward work on them).
@@ -42,7 +42,7 @@ def batched_mlp(p: dict[str, Tensor], geometry: Tensor, colour_in: Tensor, width
 
     Args:
         p: per-layer views (n, *shape) of the n rows (``InstanceFieldBank.split_params``).
-        geometry, colour_in: (n, P, 87) and (n, P, 42) encodings (``mapping.encoding.encode_positions``).
+        geometry, colour_in: (n, P, 87) and (n, P, 42) encodings (``mapping.model.encoding.encode_positions``).
         width: W, the hidden width.
         sharpness: ``FieldConfig.occupancy_sharpness``.
         with_colour: skip the colour head when False.

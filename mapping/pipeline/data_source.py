@@ -11,6 +11,8 @@ geometric segmenter (planes + clusters), whose instances get neutral captions. T
 
 from __future__ import annotations
 
+from typing import Callable
+
 import time
 import warnings
 from dataclasses import dataclass, field
@@ -316,13 +318,19 @@ class DataSource:
     def camera_views(self, stride: int) -> CameraViews | None:
         return None
 
-    def record(self, settings: dict) -> SourceRecord:
-        """What the run records of this source beside ``settings``."""
+    def facts(self) -> dict:
+        """What the run found of this data set on disk: its layout, name and frames per agent."""
+        inputs = self.inputs
+        return {"kind": inputs.kind, "scene": inputs.name,
+                "frames_per_agent": {a: len(s) for a, s in inputs.frames.items()}}
+
+    def record(self, settings: dict, identity: dict | None = None,
+               read_identity: Callable[[dict], dict | None] | None = None) -> SourceRecord:
+        """What the run records of this source beside ``settings`` (``SourceRecord``'s fields)."""
         inputs = self.inputs
         caption = (lambda iid, text: instance_caption(text, iid)) if inputs.masks == "geometric" else None
         return SourceRecord(
-            {**settings, "kind": inputs.kind, "scene": inputs.name,
-             "frames_per_agent": {a: len(s) for a, s in inputs.frames.items()}},
+            settings,
             {"ground_truth": inputs.ground_truth, "masks": inputs.masks,
              "timings_s": {k: round(v, 4) for k, v in inputs.timings_s.items()}},
-            list(inputs.notes), caption)
+            list(inputs.notes), caption, described=self.facts(), identity=identity, read_identity=read_identity)

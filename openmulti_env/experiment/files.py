@@ -1,0 +1,141 @@
+"""A tree on disk: ``OUT/config.yaml`` (or ``.json``) written whole by every run, read back by
+``openmulti run --config``, and the one place the records of older versions are read (their flat settings
+dicts in ``checkpoints/run_settings.json`` and ``metrics.json``'s ``config``)."""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import asdict, replace
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from mapping.pipeline.records import as_record
+from openmulti_env.experiment.overrides import ConfigError, from_mapping
+from openmulti_env.experiment.tree import Experiment
+
+FORMAT = "openmulti.experiment"
+"""The ``format`` key of a written tree."""
+VERSION = 1
+"""The version of the tree's layout this code writes and reads; a file of another is refused."""
+CONFIG_NAME = "config.yaml"
+
+LEGACY_SOURCE_KEYS = ("kind", "scene", "frames_per_agent")
+"""Keys a data-set source added to the flat records of version 0 (what it found on disk, not settings)."""
+LEGACY_DROPPED = ("team", "three_cullings", "data_kind")
+"""Keys of the version-0 records that are no option of the tree (the team is compared resolved, the
+cullings decide no map)."""
+
+
+def tree_record(tree: Experiment) -> dict:
+    """The tree as plain JSON/YAML data, with its format and version."""
+    return {"format": FORMAT, "version": VERSION, **as_record(asdict(tree))}
+
+
+def write_config(tree: Experiment, out: Path) -> Path:
+    """``out/config.yaml``, atomically (a crash never leaves half a file)."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    path = out / CONFIG_NAME
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text("# openmulti run --config " + str(path) + " --out NEW repeats this run\n"
+                   + yaml.safe_dump(tree_record(tree), sort_keys=False, default_flow_style=None, width=110))
+    os.replace(tmp, path)
+    return path
+
+
+def read_config(path: str | Path) -> Experiment:
+    """The tree in a ``config.yaml`` / ``.json`` (or a run's ``metrics.json``, whose ``config`` it takes);
+    ConfigError saying why it cannot be read."""
+    path = Path(path)
+    if not path.is_file():
+        raise ConfigError(f"config file {path} does not exist")
+    try:
+        text = path.read_text()
+        data = json.loads(text) if path.suffix == ".json" else yaml.safe_load(text)
+    except (OSError, ValueError, yaml.YAMLError) as exc:
+        raise ConfigError(f"config file {path} is not valid {'JSON' if path.suffix == '.json' else 'YAML'}: {exc}") from None
+    if isinstance(data, dict) and "config" in data and "mean" in data:  # a metrics.json
+        data = data["config"]
+    if not isinstance(data, dict):
+        raise ConfigError(f"config file {path} holds {type(data).__name__}, not a mapping of settings")
+    try:
+        return experiment_from_record(data)
+    except ConfigError as exc:
+        raise ConfigError(f"config file {path}: {exc}") from None
+
+
+def experiment_from_record(record: dict) -> Experiment:
+    """A tree from a written record: this version's (``tree_record``), or a version-0 flat settings dict
+    (``openmulti run`` before the tree: ``scene``/``data``, ``agents``, ``policy``, ``preset``, ``seed``,
+    ``alignment`` ``"paper"``/``"none"``, ``comm_budget_mb``, ...), read through the short spellings."""
+    if "format" in record or "version" in record:
+        if record.get("format") != FORMAT:
+            raise ConfigError(f"not an experiment record (format {record.get('format')!r}, expected {FORMAT!r})")
+        if record.get("version") != VERSION:
+            raise ConfigError(f"written by another version of openmulti (layout version {record.get('version')!r}); "
+                              f"this one reads version {VERSION}")
+        return from_mapping(Experiment, {k: v for k, v in record.items() if k not in ("format", "version")})
+    return _from_version0(record)
+
+
+def _from_version0(record: dict) -> Experiment:
+    """A flat settings dict of version 0 as a tree (see ``experiment_from_record``)."""
+    from openmulti_env.experiment.build import experiment  # noqa: PLC0415
+
+    if "preset" not in record or not ({"scene", "data"} & set(record)):
+        raise ConfigError("not an experiment record: it has neither a format nor the flat settings of an older run "
+                          "(preset and scene or data)")
+    flat = {k: v for k, v in record.items() if k not in LEGACY_DROPPED and k != "preset"}
+    if "data" in flat:
+        for key in LEGACY_SOURCE_KEYS:
+            flat.pop(key, None)
+    if flat.get("global_form") == "published":
+        flat.pop("global_width", None)  # version 0 recorded the SDF's width there; the tree reads sdf.width
+    return experiment(record["preset"], flat)
+
+
+def recorded_num_agents(config: dict) -> int:
+    """The team size a ``metrics.json``'s ``config`` records, whichever version wrote it."""
+    return int(config["world"]["num_agents"] if "world" in config else config["agents"])
+
+
+def source_facts(record: dict) -> dict:
+    """What a version-0 data-set record held of its source (detected layout, name, frames per agent)."""
+    return {k: record[k] for k in LEGACY_SOURCE_KEYS if k in record} if "data" in record else {}
+
+
+def maps_identity(tree: Experiment) -> dict:
+    """What decides a run's maps (its checkpoints are kept only under the same): the tree without the job's
+    settings (threads, output, progress, ...) but the policy, without the env's, and without the team (the run
+    compares the team it resolved)."""
+    record = as_record(asdict(tree))
+    for key in ("env", "team", "format", "version"):
+        record.pop(key, None)
+    record["run"] = {"policy": tree.run.policy}
+    if tree.data.path is not None:
+        record["data"]["path"] = str(Path(tree.data.path).resolve())
+    return record
+
+
+def checkpoint_identity(tree: Experiment, source: dict[str, Any]) -> dict:
+    """The record a run's checkpoints are made under, besides the team it resolved (the pipeline adds it as
+    ``team``): ``maps_identity`` and what the source found on disk."""
+    return {"format": FORMAT, "version": VERSION, "experiment": maps_identity(tree), "source": source}
+
+
+def read_checkpoint_identity(record: dict) -> dict | None:
+    """A record of ``checkpoints/run_settings.json`` as ``checkpoint_identity`` gives it, whichever version
+    wrote it (None when it cannot be read: the checkpoints are then not trusted)."""
+    if record.get("format") == FORMAT:
+        return None  # this version's records are compared as written; another version's are not trusted
+    try:
+        tree = _from_version0(record)
+    except (ConfigError, ValueError):
+        return None
+    if "team" not in record:
+        return None
+    tree = replace(tree, run=replace(tree.run, policy=record.get("policy", tree.run.policy)))
+    return {**checkpoint_identity(tree, source_facts(record)), "team": record["team"]}

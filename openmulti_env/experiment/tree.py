@@ -1,0 +1,177 @@
+"""The configuration tree of one experiment: every setting of a run, of the env and of training, in one
+frozen dataclass tree.
+
+    Experiment
+      preset, scene, seed                  what the episode is
+      world       WorldConfig               agents, paths, sensor, free space, culling (``openmulti_env.world``)
+      perception  PerceptionSettings        the front end: error model, text and image encoders, segmenter
+      team        TeamConfig                the learner: mapping, fusion, arrival, consistency, exchange, ...
+      global_map  GlobalMapSettings         the global baselines' one network (with ``team.global_map``)
+      channel     ChannelConfig             the links: success probability, byte budget
+      env         EnvSettings               the PettingZoo env only: reward, observation, horizon, caches
+      run         RunSettings               how the job runs: policy, output, threads, checkpoints, scoring
+      data        DataSettings              a real RGB-D data set instead of the simulator (``data.path``)
+
+A preset (``openmulti_env.presets``) is one such tree; every entry point (``openmulti run``, ``reproduce``'s
+methods, ``parallel_env(**overrides)``, ``openmulti train``) builds its tree as a preset plus overrides
+(``openmulti_env.experiment.overrides``), each option is written once (its docstring is its ``--help``), and
+every run writes its tree whole (``openmulti_env.experiment.files``) so that ``--config`` repeats it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+from mapping.model.sdf_loss import SdfConfig
+from mapping.team import ChannelConfig, TeamConfig
+from mapping.team.global_map import GLOBAL_ENCODING_SCALE, GLOBAL_FORMS, GLOBAL_WIDTH
+from openmulti_env.world.world import WorldConfig
+
+TEXT_ENCODERS = ("mpnet", "minilm")
+REWARD_MODES = ("team", "individual")
+DATA_KINDS = ("auto", "replica", "nice_slam", "scannet")
+PROCESS_MODES = (None, "ray")
+
+
+@dataclass(frozen=True)
+class PerceptionSettings:
+    """The front end (sec. III-A): what turns frames into instance observations."""
+
+    segmentation_errors: bool = True
+    """The simulator's seeded error model of the segmenter and captioner (False: perfect masks)."""
+    text_encoder: str = "mpnet"
+    """Caption encoder: ``mpnet`` (SBERT all-mpnet-base-v2) or ``minilm`` (all-MiniLM-L6-v2, OpenObj's)."""
+    clip_checkpoint: str | None = None
+    """Local open_clip checkpoint: masks get visual features (None: caption features only)."""
+    segmenter: str = "fixed"
+    """The geometric segmenter's thresholds for data without instance images: ``fixed`` or ``range_aware``."""
+
+
+@dataclass(frozen=True)
+class GlobalMapSettings:
+    """The global baselines' one network per agent (used when ``team.global_map`` is set)."""
+
+    form: str = "equal_compute"
+    """``equal_compute`` (an occupancy network with the instance-level map's per-step FLOPs) or
+    ``published`` (MACIM's scene SDF, samples, losses, iteration budget and rho 0.3)."""
+    width: int = GLOBAL_WIDTH
+    """Hidden width of the equal-compute network (the published form uses ``sdf.width``)."""
+    encoding_scale: float = GLOBAL_ENCODING_SCALE
+    """Positional-encoding scale of the equal-compute network in the scene box."""
+    sdf: SdfConfig = field(default_factory=SdfConfig)
+    """The published form's settings (MACIM's by default)."""
+
+
+@dataclass(frozen=True)
+class EnvSettings:
+    """What only the PettingZoo env uses: reward, observation, horizon and its caches."""
+
+    reward: str = "team"
+    """``team``: every agent gets the team's completion gain; ``individual``: its own."""
+    comm_cost_per_mb: float = 0.0
+    """Reward cost per megabyte sent."""
+    budget_penalty: float = 0.05
+    """Reward penalty per message refused because its sender's budget was spent."""
+    probe_points: int = 2000
+    """Observable-surface samples of the completion estimate (reward; also the map channels' points)."""
+    map_size: int = 64
+    """Observation side in pixels (top-down map of the room)."""
+    horizon: int | None = None
+    """Steps before truncation (None: until the paths end, which is termination). ``max_cycles`` is an alias."""
+    frame_cache_mb: float = 256.0
+    """Rendered frames kept in memory across episodes (past the cap frames are rendered again)."""
+    cache_dir: str | None = None
+    """World-geometry cache folder (default: ``$OPENMULTI_CACHE`` or ``~/.cache/openmulti``, then ``worlds/``)."""
+    cache_max_mb: float = 2048.0
+    """Size cap of the world cache; the least recently used entries go first."""
+
+
+@dataclass(frozen=True)
+class RunSettings:
+    """How the job runs: the schedule, where outputs go, threads and processes, checkpoints, scoring.
+    Nothing here changes the maps but ``policy``."""
+
+    policy: str = "always"
+    """Communication policy: always, never, round_robin, budget, every:K, at:R1,R2,..., rate:Q, bernoulli:P,
+    novelty[:k=v,...], instance_novelty, learned, or a trained policy file (.json beside its .safetensors)."""
+    out: str = "runs/demo"
+    """Output folder (the same folder and settings resume a run)."""
+    device: str = "auto"
+    """Learner device: cpu, cuda or auto (cuda when available)."""
+    threads: int | None = None
+    """Torch threads (None: all cores, shared by the workers)."""
+    workers: int | None = None
+    """Agents trained side by side on threads (None: one per core with 1 torch thread each, or 1 when
+    ``threads`` is given); results do not depend on it."""
+    processes: str | None = None
+    """``ray``: every agent maps in a Ray actor of its own, exchanging only serialised messages."""
+    learner: str = "per_agent"
+    """``per_agent`` or ``fleet`` (every agent's steps batched into one computation; the same maps to float
+    tolerance)."""
+    checkpoint_every: int = 5
+    """Save the team every this many rounds (an interrupted run resumes from it)."""
+    max_rounds: int | None = None
+    """Stop after this many rounds (None: when the paths end), e.g. for smoke tests."""
+    three_cullings: bool = False
+    """Also score every map NICE-SLAM-culled and unculled."""
+    plots: bool = True
+    """Write the pictures."""
+    evaluate: bool = True
+    """False: map only (rounds, bytes, the final checkpoint); the same run again with it scores the maps."""
+    progress: bool = True
+    """Progress bars."""
+
+
+@dataclass(frozen=True)
+class DataSettings:
+    """A real RGB-D data set instead of the simulator (``path`` None: the simulator)."""
+
+    path: str | None = None
+    """The data set folder (Replica vMAP or NICE-SLAM layout, or a ScanNet export), cut into one contiguous
+    sequence per agent."""
+    kind: str = "auto"
+    """Data set layout: auto, replica, nice_slam or scannet."""
+    gt_mesh: str | None = None
+    """Ground-truth mesh (None: a TSDF reference of the frames)."""
+    frames: str | None = None
+    """``A:B:S``: frames A..B-1 every S-th, before the split into agents."""
+    intrinsics: str | None = None
+    """``FX,FY,CX,CY``: override the data set's camera."""
+    depth_scale: float | None = None
+    """Raw depth units per metre (None: the layout's or cam_params.json)."""
+    recording_mapper: bool = True
+    """The mapper through ``mapping.model.agent_config.for_recordings`` (carving, crossing free-space rays)."""
+
+
+@dataclass(frozen=True)
+class Experiment:
+    """Every setting of one experiment (see the module docstring)."""
+
+    preset: str = "fast"
+    """The preset this tree started from (``openmulti_env.presets``); recorded, not read by the parts."""
+    scene: str = "room0"
+    """Scene preset name, ``random:SEED`` or the path of a scene manifest."""
+    seed: int = 0
+    """One seed for layout, paths, segmentation errors, channel draws and network initialisation."""
+    world: WorldConfig = field(default_factory=WorldConfig)
+    perception: PerceptionSettings = field(default_factory=PerceptionSettings)
+    team: TeamConfig = field(default_factory=TeamConfig)
+    global_map: GlobalMapSettings = field(default_factory=GlobalMapSettings)
+    channel: ChannelConfig = field(default_factory=ChannelConfig)
+    env: EnvSettings = field(default_factory=EnvSettings)
+    run: RunSettings = field(default_factory=RunSettings)
+    data: DataSettings = field(default_factory=DataSettings)
+
+    @property
+    def num_agents(self) -> int:
+        """The team size (``world.num_agents``)."""
+        return self.world.num_agents
+
+    def with_team_minimums(self) -> "Experiment":
+        """The tree with ``team.min_keyframes`` and ``team.min_local_steps`` set to what a full path of
+        ``world.path.frames_per_agent`` frames gives (floor, so that a full path's keyframe interval is never
+        below ``keyframe_every``): a short stream still gets a full path's keyframes and iterations."""
+        mapping = self.team.mapping
+        keyframes = self.world.path.frames_per_agent // mapping.keyframe_every
+        return replace(self, team=replace(self.team, min_keyframes=keyframes,
+                                          min_local_steps=keyframes * mapping.iterations_per_keyframe))

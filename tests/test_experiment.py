@@ -1,0 +1,121 @@
+"""The configuration tree: one tree per experiment, written whole, read back strictly, replayed exactly, the
+records of older versions read in one place, and the command line generated from it."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, replace
+
+import pytest
+import yaml
+
+from mapping.pipeline.records import as_record
+from openmulti_env.experiment import (ConfigError, Experiment, checkpoint_identity, experiment, read_checkpoint_identity,
+                                      read_config, resolved_team, tree_record, write_config)
+from openmulti_env.experiment.options import tree_fields
+from openmulti_env.presets import PRESET_NAMES, get_preset
+from openmulti_env.runs.cli import build_parser, main
+
+
+@pytest.mark.parametrize("preset", PRESET_NAMES)
+def test_every_preset_round_trips_through_yaml_and_json(preset, tmp_path):
+    tree = experiment(preset, policy="bernoulli:0.5", float16=True, comm_budget_mb=3.0)
+    assert tree.channel.success_probability == 0.5 and tree.channel.budget_bytes == 3e6
+    assert read_config(write_config(tree, tmp_path)) == tree
+    (tmp_path / "c.json").write_text(json.dumps(tree_record(tree)))
+    assert read_config(tmp_path / "c.json") == tree
+
+
+def test_short_spellings_and_dotted_paths_set_the_same_field():
+    assert experiment("tiny", float16=True) == experiment("tiny", **{"team.exchange.float16": True})
+    assert experiment("tiny", alignment="none").team.alignment is False
+    tree = experiment("tiny", keyframe_every=2)  # the minimums follow the mapping they were derived from
+    assert tree.team.min_keyframes == 24 // 2 and tree.team.min_local_steps == 12 * 10
+    assert experiment("tiny", **{"team.min_keyframes": 3}, keyframe_every=2).team.min_keyframes == 3
+
+
+def test_bad_options_name_the_field_and_the_nearest_valid_ones():
+    with pytest.raises(ConfigError, match="did you mean float16"):
+        experiment("tiny", flaot16=True)
+    with pytest.raises(ConfigError, match="did you mean team.exchange.float16"):
+        experiment("tiny", **{"team.exchange.flaot16": True})
+    with pytest.raises(ConfigError, match="team.mapping.keyframe_every takes an integer, got 'often'"):
+        experiment("tiny", keyframe_every="often")
+    with pytest.raises(ConfigError, match="oracle"):
+        experiment("tiny", alignment="oracle")
+    with pytest.raises(ConfigError, match="world.num_agents must be between 1 and 8"):
+        experiment("tiny", agents=9)
+    with pytest.raises(ConfigError, match="policy 'budget' needs a budget"):
+        experiment("tiny", policy="budget")
+
+
+def test_config_files_with_unknown_fields_or_another_version_are_refused(tmp_path):
+    record = tree_record(get_preset("tiny"))
+    path = tmp_path / "config.yaml"
+    path.write_text(yaml.safe_dump({**record, "team": {**record["team"], "flaot16": True}}))
+    with pytest.raises(ConfigError, match="unknown field 'team.flaot16'"):
+        read_config(path)
+    path.write_text(yaml.safe_dump({**record, "version": 99}))
+    with pytest.raises(ConfigError, match="another version of openmulti"):
+        read_config(path)
+    path.write_text("- just\n- a list\n")
+    with pytest.raises(ConfigError, match="not a mapping"):
+        read_config(path)
+    with pytest.raises(ConfigError, match="does not exist"):
+        read_config(tmp_path / "missing.yaml")
+
+
+def test_every_field_of_the_tree_has_its_help_and_an_option():
+    fields = tree_fields(Experiment)
+    undocumented = [path for path, _, doc, _ in fields if not doc]
+    assert not undocumented, f"fields without a docstring (their --help): {undocumented}"
+    import argparse
+
+    subcommands = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
+    options = set(subcommands.choices["run"]._option_string_actions)
+    for path, *_ in fields:
+        if "." in path and not path.startswith("env."):
+            assert "--" + path.replace("_", "-") in options, path
+
+
+def test_a_run_record_of_the_version_before_the_tree_reads_as_the_same_run():
+    """``checkpoints/run_settings.json`` as ``openmulti run`` wrote it before the tree (a flat dict and the
+    team): the folder resumes under the tree."""
+    tree = experiment("tiny", scene="tiny", agents=2, policy="bernoulli:0.5", alignment="paper", comm_budget_mb=2.0)
+    team = as_record(asdict(resolved_team(tree, tree.team.mapping)))
+    old = {"scene": "tiny", "agents": 2, "policy": "bernoulli:0.5", "preset": "tiny", "seed": 0, "alignment": "paper",
+           "segmentation_errors": True, "clip_checkpoint": None, "comm_budget_mb": 2.0, "consistency": "consensus",
+           "cross_rendering": True, "float16": False, "changed_only": None, "team": team}
+    assert read_checkpoint_identity(old) == {**checkpoint_identity(tree, {}), "team": team}
+    assert read_checkpoint_identity({**old, "segmentation_errors": False}) != {**checkpoint_identity(tree, {}), "team": team}
+
+
+def test_a_run_replays_from_its_config_file(tmp_path, capsys):
+    first, second = tmp_path / "first", tmp_path / "second"
+    args = ["run", "--preset", "rl_tiny", "--scene", "tiny", "--agents", "2", "--out", str(first), "--no-evaluation",
+            "--run.max-rounds", "2", "--team.exchange.float16", "--team.consistency.rho", "0.5"]
+    assert main(args) == 0
+    tree = read_config(first / "config.yaml")
+    assert tree.team.exchange.float16 and tree.team.consistency.rho == 0.5 and tree.run.max_rounds == 2
+    assert main(["run", "--config", str(first / "config.yaml"), "--out", str(second)]) == 0
+    assert read_config(second / "config.yaml") == replace(tree, run=replace(tree.run, out=str(second)))
+    rounds = [json.loads((d / "rounds.json").read_text())["rounds"] for d in (first, second)]
+    assert [r["bytes_sent"] for r in rounds[0]] == [r["bytes_sent"] for r in rounds[1]]
+    metrics = json.loads((second / "metrics.json").read_text())
+    assert metrics["config"] == json.loads(json.dumps(tree_record(read_config(second / "config.yaml"))))
+    assert main(["run", "--config", str(first / "config.yaml"), "--preset", "tiny"]) == 2
+    assert "not both" in capsys.readouterr().err
+    assert main(["run", "--preset", "tiny", "--team.exchange.flaot16"]) == 2
+    assert "did you mean --team.exchange.float16" in capsys.readouterr().err
+
+
+def test_the_env_takes_dotted_paths_and_whole_trees():
+    from openmulti_env import parallel_env
+
+    env = parallel_env(preset="rl_tiny", team__exchange__float16=True, rays_per_object=7)
+    assert env.config.team.exchange.float16 and env.config.team.mapping.rays_per_object == 7
+    assert env.config.run.threads == 1  # the env's own default
+    tree = experiment("rl_tiny", map_size=32)
+    assert parallel_env(preset="rl_tiny", config=tree).config.env.map_size == 32
+    with pytest.raises(ValueError, match="did you mean rays_per_object"):
+        parallel_env(preset="rl_tiny", rays_per_objetc=7)
