@@ -103,7 +103,7 @@ def main(argv: list[str] | None = None) -> None:
         parser.error("--after takes iteration counts >= 0")
     from openmulti_env.presets import get_preset
 
-    args.frames = get_preset(args.preset).frames_per_agent
+    args.frames = get_preset(args.preset).world.path.frames_per_agent
     args.out.mkdir(parents=True, exist_ok=True)
     path = args.out / "rows.json"
     rows = json.loads(path.read_text()) if path.exists() else []

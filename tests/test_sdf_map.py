@@ -176,51 +176,50 @@ def test_bad_sdf_settings_are_refused():
 
 
 def test_the_published_form_sets_macims_budget_and_rho():
-    from openmulti_env.presets import get_preset
-    from openmulti_env.runs.run import run_team_config
+    from dataclasses import replace
 
-    preset = get_preset("fast")
-    mapping = published_mapping(preset.mapping, (2.0, 2.0, 1.5, 2.6))
+    from openmulti_env.experiment import experiment, resolved_team
+
+    tree = experiment("fast", global_map=True, global_form="published", cross_rendering=False)
+    mapping = published_mapping(tree.team.mapping, (2.0, 2.0, 1.5, 2.6))
     assert mapping.structure_sdf == SdfConfig() and mapping.structure_width == 256
     assert mapping.keyframe_every == 1 and mapping.iterations_per_keyframe == 3
     assert mapping.iterations_after_stream == 200 and mapping.iterations_first_keyframe == 200
     assert mapping.structure_encoding_scale == pytest.approx(1.0 / (2.6 * SdfConfig().encoding_per_m))
-    team = run_team_config(preset, "paper", "consensus", False, False, None, mapping=mapping, global_map=True, rho=0.3)
+    team = resolved_team(tree, mapping)
     assert team.consistency.rho == 0.3 and team.global_map
     # a full path gets exactly 3 iterations per frame before the 200 after it
-    assert team.min_local_steps == preset.frames_per_agent * 3
+    assert team.min_local_steps == tree.world.path.frames_per_agent * 3
+    crossing = replace(tree, team=replace(tree.team, consistency=replace(tree.team.consistency, cross_rendering=True)))
     with pytest.raises(ValueError, match="Cross Rendering .* MACIM's scene SDF"):
-        run_team_config(preset, "paper", "consensus", True, False, None, mapping=mapping, global_map=True)
+        resolved_team(crossing, mapping)
 
 
 def test_an_unknown_global_form_is_refused(tmp_path):
     from openmulti_env.runs.reproduce.methods import Method
     from openmulti_env.runs.run import run
 
-    with pytest.raises(ValueError, match="unknown global_form 'macim'"):
+    with pytest.raises(ValueError, match="global_map.form must be one of .* got 'macim'"):
         run("tiny", 2, "always", "tiny", 0, tmp_path, global_map=True, global_form="macim", progress=False)
     with pytest.raises(ValueError, match="unknown global_form 'x'"):
         Method("m", "M", "d", global_map=True, global_form="x")
 
 
-def test_a_study_budget_reaches_the_published_map_and_is_refused_for_any_other(tmp_path):
-    from openmulti_env.presets import get_preset
+def test_a_study_budget_reaches_the_published_map(tmp_path):
+    from openmulti_env.experiment import experiment
     from openmulti_env.runs.run import map_structure, run
     from openmulti_env.world import World
 
-    preset = get_preset("tiny")
-    world = World.build("tiny", seed=0, config=preset.world_config(1))
+    longer = SdfConfig(iterations_after=2000)
+    tree = experiment("tiny", agents=1, global_map=True, global_form="published", cross_rendering=False, sdf=longer)
+    world = World.build("tiny", seed=0, config=tree.world)
     try:
-        longer = SdfConfig(iterations_after=2000)
-        mapping, info = map_structure(world, preset, True, 256, published=True, sdf=longer)
+        mapping, info = map_structure(world, tree)
         assert mapping.iterations_after_stream == 2000 and info["iterations_after"] == 2000
-        default, info = map_structure(world, preset, True, 256, published=True)
+        default, info = map_structure(world, experiment("tiny", agents=1, global_map=True, global_form="published"))
         assert default.iterations_after_stream == 200 and info["iterations_after"] == 200
     finally:
         world.close()
-    for other in ({}, {"global_map": True}):
-        with pytest.raises(ValueError, match="published global map only"):
-            run("tiny", 1, "never", "tiny", 0, tmp_path, progress=False, sdf=longer, **other)
     with pytest.raises(ValueError, match="global map only"):
         run("tiny", 1, "never", "tiny", 0, tmp_path, progress=False, shared_global_init=False)
 
