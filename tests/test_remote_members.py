@@ -118,5 +118,5 @@ def test_the_env_with_agents_in_processes_steps_as_in_one(local_ray, tmp_path):
         for agent in b:
             assert np.array_equal(a[agent]["map"], b[agent]["map"])
             np.testing.assert_allclose(a[agent]["comm"], b[agent]["comm"], rtol=0, atol=1e-6)
-    with pytest.raises(ValueError, match="agent_processes must be None or 'ray'"):
+    with pytest.raises(ValueError, match="run.processes must be None or 'ray', got 'mpi'"):
         parallel_env(preset="rl_tiny", agent_processes="mpi")

@@ -17,7 +17,7 @@ import inspect
 import textwrap
 import typing
 from functools import lru_cache
-from typing import Any
+from typing import Any, Mapping
 
 import yaml
 
@@ -162,6 +162,17 @@ def normalise_argv(argv: list[str]) -> list[str]:
             token = name.replace("_", "-") + eq + value
         out.append(token)
     return out
+
+
+def spelled_for_command_line(message: str, options: Mapping[str, Any]) -> str:
+    """``message`` (a ConfigError's) with its leading field path spelled as the option that sets it on this
+    command line, e.g. ``--comm-budget-mb (channel.budget_mb) must be >= 0``: the user reads what they typed."""
+    path, _, rest = message.partition(" ")
+    for name in (name for name, target in ALIASES.items() if target == path):
+        option = "--" + _spelled(name)
+        if option in options:
+            return f"{option} ({path}) {rest}"
+    return message
 
 
 def _spelled(path: str) -> str:

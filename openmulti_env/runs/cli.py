@@ -16,8 +16,9 @@ import numpy as np
 
 from mapping.perception.image_encoder import ImageEncoderError
 from mapping.perception.text_encoder import TextEncoderError
-from openmulti_env.experiment import CONFIG_NAME, Experiment, experiment, read_config
+from openmulti_env.experiment import CONFIG_NAME, ConfigError, Experiment, experiment, read_config
 from openmulti_env.experiment.options import (TRAIN_DEST, add_dataclass_options, add_tree_options, normalise_argv,
+                                              spelled_for_command_line,
                                               tree_overrides, typed_overrides)
 from openmulti_env.presets import PRESET_NAMES, get_preset
 from openmulti_env.world.world import MAX_AGENTS
@@ -310,11 +311,15 @@ On a cluster: RLlib's PPO with one env runner per core (the same settings, run f
 docs/ray.md). --backend rllib alone runs its env runners on a Ray started on this machine."""
 
 
+def _subparser(parser: argparse.ArgumentParser, command: str) -> argparse.ArgumentParser:
+    return next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction)).choices[command]
+
+
 def unknown_option_message(parser: argparse.ArgumentParser, command: str, unknown: list[str]) -> str:
     """What the command line gave that no option takes, and the nearest options."""
     import difflib  # noqa: PLC0415
 
-    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction)).choices[command]
+    sub = _subparser(parser, command)
     given = next((u for u in unknown if u.startswith("-")), unknown[0]).split("=", 1)[0]
     near = difflib.get_close_matches(given, sorted(sub._option_string_actions), n=3, cutoff=0.6)
     return f"unknown option {given!r}" + (f"; did you mean {', '.join(near)}?" if near else
@@ -330,6 +335,10 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     try:
         return int(args.func(args))
+    except ConfigError as exc:
+        options = _subparser(parser, args.command)._option_string_actions
+        print(f"openmulti {args.command}: error: {spelled_for_command_line(str(exc), options)}", file=sys.stderr)
+        return 2
     except (ValueError, FileNotFoundError, KeyError, TextEncoderError, ImageEncoderError) as exc:
         print(f"openmulti {args.command}: error: {exc}", file=sys.stderr)
         return 2
