@@ -51,7 +51,6 @@ import contextlib
 import json
 import os
 import shutil
-import dataclasses
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Callable
@@ -64,8 +63,8 @@ from mapping.model.agent_config import MappingConfig
 from mapping.evaluate.geometry import surface_classes
 from mapping.perception.geometric_segmenter import RANGE_AWARE, GeometricSegmenterConfig
 from mapping.pipeline.records import write_json_atomic
-from openmulti_env.presets import PRESETS, Preset
-from openmulti_env.runs.run import run, run_data
+from openmulti_env.experiment import Experiment, check, experiment
+from openmulti_env.runs.run import run_experiment
 
 KEYS = ("depth_median_cm", "depth_off_pct", "depth_no_surface_pct", "depth_heldout_median_cm",
         "depth_heldout_off_pct", "acc_cm", "comp_ratio")
@@ -130,30 +129,15 @@ VARIANTS: dict[str, Variant] = {
 }
 
 
-@dataclass(frozen=True)
-class _StudyPreset(Preset):
-    """A preset whose team settings also take ``team_options`` and whose sensor takes ``sensor``."""
-
-    team_options: dict = field(default_factory=dict)
-    sensor: dict = field(default_factory=dict)
-
-    def team_config(self, mapping=None, consistency=None, **options):
-        return super().team_config(mapping, consistency, **{**options, **self.team_options})
-
-    def world_config(self, num_agents: int):
-        config = super().world_config(num_agents)
-        return replace(config, sensor=replace(config.sensor, **self.sensor))
-
-
-def _register(preset: str, variant: str) -> str:
-    """A preset named ``study_<variant>``: ``preset`` with the variant's changes (in this process only)."""
-    base: Preset = PRESETS[preset]
-    name = f"study_{variant}"
+def study_tree(preset: str, variant: str, **settings) -> Experiment:
+    """``preset``'s tree with ``settings`` (short spellings) and the variant's changes to the mapper, the
+    sensor and the team (the team's keyframe minimums follow the changed mapper unless the variant sets them)."""
     change = VARIANTS[variant]
-    fields = {f.name: getattr(base, f.name) for f in dataclasses.fields(base)}
-    PRESETS[name] = _StudyPreset(**{**fields, "name": name, "mapping": change.mapping(base.mapping)},
-                                 team_options=change.team, sensor=change.sensor)
-    return name
+    tree = experiment(preset, **settings)
+    world = replace(tree.world, sensor=replace(tree.world.sensor, **change.sensor))
+    tree = replace(tree, world=world, team=replace(tree.team, mapping=change.mapping(tree.team.mapping)))
+    tree = tree.with_team_minimums()
+    return check(replace(tree, team=replace(tree.team, **change.team)))
 
 
 @contextlib.contextmanager
@@ -209,12 +193,12 @@ def main() -> None:
                 continue
             run_dir = out / key.replace("/", "_")
             shutil.rmtree(run_dir, ignore_errors=True)
-            options = dict(device="cpu", threads=args.threads, holdout_every=args.holdout_every)
-            preset = _register(args.preset, variant)
+            where = {"data": data, "recording_mapper": VARIANTS[variant].recording_mapper} if data else {"scene": scene}
+            tree = study_tree(args.preset, variant, agents=args.agents, policy="always", seed=args.seed,
+                              out=str(run_dir), device="cpu", threads=args.threads,
+                              holdout_every=args.holdout_every, **where)
             with _segmenter(VARIANTS[variant].segmenter):
-                metrics = (run_data(data, args.agents, "always", preset, args.seed, run_dir,
-                                    recording_mapper=VARIANTS[variant].recording_mapper, **options) if data
-                           else run(scene, args.agents, "always", preset, args.seed, run_dir, **options))
+                metrics = run_experiment(tree)
             rows[key] = {k: _mean([a.get(k) for a in metrics["agents"].values()]) for k in KEYS}
             rows[key]["team_coverage_pct"] = team_coverage_pct(run_dir)
             rows[key]["wall_s"] = metrics["wall_s"]
