@@ -70,7 +70,7 @@ def _set_array(name: str, field: int, value):
 
 
 @pytest.mark.parametrize("name, field, value, error", [
-    ("0.cloud", 2, [-1, 3], "0.cloud: shape \\[-1, 3\\] is not a list of non-negative integers"),
+    ("0.cloud", 2, [-1, 3], "0.cloud: shape \\[-1, 3\\] is not a list of at most 4 non-negative integers"),
     ("0.params", 1, "object", "0.params: dtype 'object' cannot travel"),
     ("0.box", 2, [3, 3], "0.box: shape \\(3, 3\\), expected \\(9\\)"),
     ("0.params", 3, -4, "0.params: offset -4"),

@@ -53,6 +53,22 @@ class TrainingBatch:
         return self.samples.positions.reshape(n, r * s, 3)
 
 
+def instance_banks(config: MappingConfig, device: torch.device | str = "cpu") -> dict[str, InstanceFieldBank]:
+    """The agent's two banks of instance networks, empty: objects at vMAP's width, walls / floor /
+    ceiling at ``config.structure_width`` (or MACIM's SDF network with ``config.structure_sdf``)."""
+    structure = replace(STRUCTURE_FIELD, hidden_width=config.structure_width,
+                        encoding_scale=config.structure_encoding_scale)
+    sdf = config.structure_sdf
+    return {"object": InstanceFieldBank(OBJECT_FIELD, device),
+            "structure": InstanceFieldBank(structure, device) if sdf is None else SdfFieldBank(
+                replace(structure, hidden_width=sdf.width, occupancy_sharpness=sdf.occupancy_sharpness), sdf, device)}
+
+
+def param_counts(config: MappingConfig) -> dict[str, int]:
+    """Per bank, the length of one instance's parameter vector (what a message's ``params`` must have)."""
+    return {name: int(bank.params.shape[1]) for name, bank in instance_banks(config).items()}
+
+
 class MappingAgent:
     """Instance-level implicit map of one agent.
 
@@ -77,13 +93,8 @@ class MappingAgent:
         # ``init_generator`` (CPU) draws initial networks, so a seed gives the same network anywhere.
         self.generator = torch.Generator(device=self.device).manual_seed(seed)
         self.init_generator = torch.Generator().manual_seed(seed if init_seed is None else init_seed)
-        structure = replace(STRUCTURE_FIELD, hidden_width=self.config.structure_width,
-                            encoding_scale=self.config.structure_encoding_scale)
         sdf = self.config.structure_sdf
-        self.banks = {"object": InstanceFieldBank(OBJECT_FIELD, self.device),
-                      "structure": InstanceFieldBank(structure, self.device) if sdf is None else SdfFieldBank(
-                          replace(structure, hidden_width=sdf.width, occupancy_sharpness=sdf.occupancy_sharpness),
-                          sdf, self.device)}
+        self.banks = instance_banks(self.config, self.device)
         adam = {name: AdamConfig(lr=self.config.lr) for name in self.banks}
         if sdf is not None:
             adam["structure"] = AdamConfig(lr=sdf.lr, weight_decay=sdf.weight_decay)

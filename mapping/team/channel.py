@@ -10,11 +10,11 @@ the same episode.
 from __future__ import annotations
 
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
-from mapping.team.messages import Message, MessageError, from_bytes, to_bytes
+from mapping.team.messages import Message, MessageError, MessageRules, from_bytes, to_bytes
 
 DELIVERED, DROPPED, OVER_BUDGET = "delivered", "dropped", "over_budget"
 
@@ -40,10 +40,12 @@ class Channel:
         success_probability: one probability for every link, or an (N, N) matrix (i -> j).
         budget_bytes: bytes each agent may send over the episode (None: unlimited).
         seed: drives the success draws.
+        rules: what the receivers can use (``MessageRules``; its ``num_agents`` is set to N): a message
+            outside them is dropped, never applied.
     """
 
     def __init__(self, num_agents: int, success_probability: float | np.ndarray = 1.0,
-                 budget_bytes: float | None = None, seed: int = 0):
+                 budget_bytes: float | None = None, seed: int = 0, rules: MessageRules | None = None):
         p = np.broadcast_to(np.asarray(success_probability, np.float64), (num_agents, num_agents)).copy()
         if np.any(~np.isfinite(p)) or np.any(p < 0) or np.any(p > 1):
             raise ValueError("success probabilities must lie in [0, 1]")
@@ -52,6 +54,7 @@ class Channel:
         self.num_agents = num_agents
         self.success = p
         self.budget_bytes = budget_bytes
+        self.rules = replace(rules or MessageRules(), num_agents=num_agents)
         self.rng = np.random.default_rng(seed)
         self.bytes_sent = np.zeros(num_agents, np.int64)
         self.bytes_received = np.zeros(num_agents, np.int64)
@@ -69,7 +72,8 @@ class Channel:
 
     def transmit_bytes(self, sender: int, receiver: int, kind: str, data: bytes) -> Delivery:
         """``transmit`` for a message already serialised (e.g. by another process). Bytes that do not
-        decode (``MessageError``) cost their sender as sent and count as dropped: never applied."""
+        decode, or whose fields are outside ``rules`` or name another link (``MessageError``), cost their
+        sender as sent and count as dropped: never applied."""
         i, j = sender, receiver
         if not (0 <= i < self.num_agents and 0 <= j < self.num_agents) or i == j:
             raise ValueError(f"message from {i} to {j}: agents are 0..{self.num_agents - 1} and differ")
@@ -80,7 +84,12 @@ class Channel:
         if self.rng.random() >= self.success[i, j]:
             return Delivery(i, j, kind, DROPPED, len(data), None)
         try:
-            message = from_bytes(data)
+            message = from_bytes(data, self.rules)
+            if (message.sender, message.receiver) != (i, j):
+                raise MessageError(f"fields sender, receiver: {message.sender} -> {message.receiver} on the link "
+                                   f"{i} -> {j}")
+            if message.kind != kind:
+                raise MessageError(f"a {message.kind} message sent as {kind}")
         except MessageError as exc:
             warnings.warn(f"message {kind} from agent_{i} to agent_{j} refused: {exc}", stacklevel=2)
             return Delivery(i, j, kind, DROPPED, len(data), None)

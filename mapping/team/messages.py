@@ -16,27 +16,23 @@ for DSGD:
   and its degree per instance, so that both ends of an edge use the same Metropolis weight
   (``mapping.team.consistency``).
 
-Wire format (one function pair for both kinds): ``b"OMMSG"``, a version byte, a uint32 header length,
-a UTF-8 JSON header (scalars, and for each array its name, dtype, shape and offset), then the arrays'
-raw little-endian bytes. Parameters may travel as float16 (``encode_params``).
+The bytes are ``mapping.team.wire``'s format; parameters may travel as float16 (``encode_params``).
+``from_bytes`` checks every field against what the receiving team can use (``MessageRules``): a message
+that fails is refused with ``MessageError`` naming the field, and the channel counts it as dropped.
 """
 
 from __future__ import annotations
 
-import json
-import struct
 from dataclasses import dataclass, field
 
 import numpy as np
 
-MAGIC = b"OMMSG"
-VERSION = 1
-_DTYPES = {"float16", "float32", "float64", "int32", "int64", "uint8"}
+from mapping.team.message_checks import (MessageRules, agent_field, checked_array, checked_ids, checked_intrinsics,
+                                         count_field, instance_meta, rigid_poses)
+from mapping.team.wire import MessageError, pack, unpack
 
-
-class MessageError(ValueError):
-    """Bytes that are not a message of this version (truncated, corrupt, or of another kind)."""
-
+__all__ = ["DegreeMessage", "InstancePayload", "Message", "MessageError", "MessageRules", "ParameterMessage",
+           "PointCloudMessage", "RayMessage", "from_bytes", "replay_pixels", "to_bytes"]
 
 @dataclass
 class InstancePayload:
@@ -134,97 +130,16 @@ def replay_pixels(message: RayMessage) -> tuple[np.ndarray, np.ndarray, np.ndarr
     return pose, rng.integers(0, width, n), rng.integers(0, height, n)
 
 
-# ---- wire format -------------------------------------------------------------------------------------
-def _pack(kind: str, scalars: dict, arrays: dict[str, np.ndarray]) -> bytes:
-    table, blobs, offset = [], [], 0
-    for name, array in arrays.items():
-        a = np.ascontiguousarray(array)
-        if a.dtype.name not in _DTYPES:
-            raise TypeError(f"array {name}: dtype {a.dtype} cannot travel")
-        blob = a.astype(a.dtype.newbyteorder("<"), copy=False).tobytes()
-        table.append([name, a.dtype.name, list(a.shape), offset])
-        blobs.append(blob)
-        offset += len(blob)
-    header = json.dumps({"kind": kind, "scalars": scalars, "arrays": table}, separators=(",", ":")).encode()
-    return MAGIC + bytes([VERSION]) + struct.pack("<I", len(header)) + header + b"".join(blobs)
-
-
-def _unpack(data: bytes) -> tuple[str, dict, dict[str, np.ndarray]]:
-    """Header and arrays of ``data``; every table entry is checked before it is read, because a message
-    that crossed a process or a machine may be anything."""
-    if len(data) < len(MAGIC) + 5 or not data.startswith(MAGIC):
-        raise MessageError("not an OpenMulti message (bad magic)")
-    if data[len(MAGIC)] != VERSION:
-        raise MessageError(f"message version {data[len(MAGIC)]}, this code reads {VERSION}")
-    start = len(MAGIC) + 1
-    (n,) = struct.unpack("<I", data[start:start + 4])
-    if start + 4 + n > len(data):
-        raise MessageError(f"truncated message (header of {n} bytes)")
-    try:
-        header = json.loads(data[start + 4:start + 4 + n].decode())
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise MessageError(f"corrupt message header ({exc})") from None
-    if not (isinstance(header, dict) and isinstance(header.get("kind"), str)
-            and isinstance(header.get("scalars"), dict) and isinstance(header.get("arrays"), list)):
-        raise MessageError("corrupt message header (expected kind, scalars and arrays)")
-    body = memoryview(data)[start + 4 + n:]
-    arrays = {}
-    for entry in header["arrays"]:
-        if not (isinstance(entry, list) and len(entry) == 4 and isinstance(entry[0], str)):
-            raise MessageError(f"corrupt array entry {entry!r} (expected [name, dtype, shape, offset])")
-        name, dtype, shape, offset = entry
-        if dtype not in _DTYPES:
-            raise MessageError(f"array {name}: dtype {dtype!r} cannot travel (one of {sorted(_DTYPES)})")
-        if not (isinstance(shape, list) and all(_count(d) for d in shape)):
-            raise MessageError(f"array {name}: shape {shape!r} is not a list of non-negative integers")
-        if not _count(offset):
-            raise MessageError(f"array {name}: offset {offset!r} is not a non-negative integer")
-        dt = np.dtype(dtype).newbyteorder("<")
-        size = int(np.prod(shape, dtype=np.int64)) * dt.itemsize
-        if offset + size > len(body):
-            raise MessageError(f"truncated message (array {name})")
-        arrays[name] = np.frombuffer(body[offset:offset + size], dtype=dt).reshape(shape).astype(dtype)
-    return header["kind"], header["scalars"], arrays
-
-
-def _count(value) -> bool:
-    """A JSON non-negative integer (bool is not one)."""
-    return isinstance(value, int) and not isinstance(value, bool) and value >= 0
-
-
-def _checked(arrays: dict[str, np.ndarray], name: str, shape: tuple[int | None, ...], floating: bool = True
-             ) -> np.ndarray:
-    """``arrays[name]`` if it has ``shape`` (None: any length) and, for floats, only finite values."""
-    if name not in arrays:
-        raise MessageError(f"array {name} is missing")
-    a = arrays[name]
-    if a.ndim != len(shape) or any(want is not None and got != want for got, want in zip(a.shape, shape)):
-        want = "(" + ", ".join("n" if w is None else str(w) for w in shape) + ")"
-        raise MessageError(f"array {name}: shape {a.shape}, expected {want}")
-    if floating and (a.dtype.kind != "f" or not np.all(np.isfinite(a))):
-        raise MessageError(f"array {name}: expected finite floats, got {a.dtype} "
-                           f"{'with non-finite values' if a.dtype.kind == 'f' else ''}".rstrip())
-    return a
-
-
-def _checked_ids(arrays: dict[str, np.ndarray], name: str) -> np.ndarray:
-    """``arrays[name]`` if it is a (n,) array of non-negative integers."""
-    a = _checked(arrays, name, (None,), floating=False)
-    if a.dtype.kind not in "iu" or np.any(a < 0):
-        raise MessageError(f"array {name}: expected non-negative integers, got {a.dtype}")
-    return a.astype(np.int64)
-
-
 def to_bytes(message: Message) -> bytes:
     """The message's serialised form (what a radio would carry)."""
     base = {"sender": message.sender, "receiver": message.receiver, "round": message.round}
     if isinstance(message, PointCloudMessage):
-        return _pack("points", base, {"points": np.asarray(message.points, np.float32)})
+        return pack("points", base, {"points": np.asarray(message.points, np.float32)})
     if isinstance(message, DegreeMessage):
-        return _pack("degrees", base, {name: np.asarray(getattr(message, name), np.int32)
+        return pack("degrees", base, {name: np.asarray(getattr(message, name), np.int32)
                                        for name in ("own_ids", "peer_ids", "degrees")})
     if isinstance(message, RayMessage):
-        return _pack("rays", {**base, "intrinsics": list(message.intrinsics), "seed": int(message.seed),
+        return pack("rays", {**base, "intrinsics": list(message.intrinsics), "seed": int(message.seed),
                               "rays_per_pose": int(message.rays_per_pose)},
                      {"poses": np.asarray(message.poses, np.float32)})
     scalars = {**base, "degree": message.degree, "instances": []}
@@ -239,47 +154,59 @@ def to_bytes(message: Message) -> bytes:
         arrays[f"{k}.feature"] = inst.caption_feature
         if inst.cloud is not None:
             arrays[f"{k}.cloud"] = np.asarray(inst.cloud, np.float32)
-    return _pack("params", scalars, arrays)
+    return pack("params", scalars, arrays)
 
 
-def from_bytes(data: bytes) -> Message:
+def from_bytes(data: bytes, rules: MessageRules = MessageRules()) -> Message:
     """Inverse of ``to_bytes``; anything else (truncated, corrupt, an array of the wrong shape or dtype,
-    non-finite values) raises MessageError naming the field, so nothing malformed is ever applied."""
-    kind, s, a = _unpack(bytes(data))
+    non-finite values, a field outside ``rules``) raises MessageError naming the field, and nothing else
+    escapes: nothing malformed is ever applied."""
     try:
-        base = (_int(s, "sender"), _int(s, "receiver"), _int(s, "round"))
+        kind, s, a = unpack(bytes(data))
+        base = (agent_field(s, "sender", rules), agent_field(s, "receiver", rules), count_field(s, "round"))
         if kind == "rays":
-            fx, fy, cx, cy, w, h = s["intrinsics"]
-            return RayMessage(*base, _checked(a, "poses", (None, 4, 4)), (fx, fy, cx, cy, int(w), int(h)),
-                              _int(s, "seed"), _int(s, "rays_per_pose"))
+            poses = rigid_poses(checked_array(a, "poses", (None, 4, 4)))
+            intrinsics = checked_intrinsics(s.get("intrinsics"), rules)
+            rays_per_pose = count_field(s, "rays_per_pose")
+            if len(poses) * rays_per_pose > rules.max_rays:
+                raise MessageError(f"field rays_per_pose: {len(poses)} poses x {rays_per_pose} rays exceed the "
+                                   f"{rules.max_rays} rays a message may ask for")
+            return RayMessage(*base, poses, intrinsics, count_field(s, "seed", 2**64 - 1), rays_per_pose)
         if kind == "points":
-            return PointCloudMessage(*base, _checked(a, "points", (None, 3)))
+            return PointCloudMessage(*base, checked_array(a, "points", (None, 3)))
         if kind == "degrees":
-            lists = [_checked_ids(a, name) for name in ("own_ids", "peer_ids", "degrees")]
+            lists = [checked_ids(a, name) for name in ("own_ids", "peer_ids", "degrees")]
             if len({len(x) for x in lists}) != 1:
                 raise MessageError(f"arrays own_ids, peer_ids, degrees: lengths {[len(x) for x in lists]} differ")
             if np.any(lists[2] < 1):
                 raise MessageError("array degrees: every degree must be >= 1")
             return DegreeMessage(*base, *lists)
         if kind != "params":
-            raise MessageError(f"unknown message kind {kind!r}")
-        instances = []
-        for k, meta in enumerate(s["instances"]):
-            box = _checked(a, f"{k}.box", (9,))
-            cloud = _checked(a, f"{k}.cloud", (None, 3)) if meta["cloud"] else None
-            instances.append(InstancePayload(meta["id"], meta["bank"], _checked(a, f"{k}.params", (None,)),
-                                             box[:3], box[3:6], box[6:9], meta["half"], meta["origin"],
-                                             meta["version"], meta["caption"], _checked(a, f"{k}.feature", (None,)),
-                                             meta["confidence"], cloud))
-        return ParameterMessage(*base, instances, _int(s, "degree"))
-    except (KeyError, ValueError, TypeError) as exc:
-        if isinstance(exc, MessageError):
-            raise
-        raise MessageError(f"corrupt message body ({type(exc).__name__}: {exc})") from None
+            raise MessageError(f"unknown message kind {kind[:40]!r}")
+        metas = s.get("instances")
+        if not isinstance(metas, list):
+            raise MessageError("field instances: expected a list")
+        instances = [_instance(k, meta, a, rules) for k, meta in enumerate(metas)]
+        ids = [inst.instance_id for inst in instances]
+        if len(set(ids)) != len(ids):
+            raise MessageError("field instances: an instance id appears twice")
+        return ParameterMessage(*base, instances, count_field(s, "degree"))
+    except MessageError:
+        raise
+    except Exception as exc:  # noqa: BLE001  (whatever a crafted message provokes is a refusal, not a crash)
+        raise MessageError(f"corrupt message ({type(exc).__name__}: {str(exc)[:120]})") from None
 
 
-def _int(scalars: dict, name: str) -> int:
-    """``scalars[name]`` if it is a non-negative integer."""
-    if not _count(scalars.get(name)):
-        raise MessageError(f"field {name}: {scalars.get(name)!r} is not a non-negative integer")
-    return scalars[name]
+def _instance(k: int, meta, arrays: dict[str, np.ndarray], rules: MessageRules) -> InstancePayload:
+    m = instance_meta(k, meta, rules)
+    params = checked_array(arrays, f"{k}.params", (None,))
+    want = None if rules.param_counts is None else rules.param_counts[m.bank]
+    if want is not None and len(params) != want:
+        raise MessageError(f"array {k}.params: {len(params)} values, a {m.bank} network has {want}")
+    box = checked_array(arrays, f"{k}.box", (9,))
+    if np.any(box[:3] > box[3:6]):
+        raise MessageError(f"array {k}.box: its low corner lies above its high corner")
+    feature = checked_array(arrays, f"{k}.feature", (rules.feature_dim,))
+    cloud = checked_array(arrays, f"{k}.cloud", (None, 3)) if m.cloud else None
+    return InstancePayload(m.id, m.bank, params, box[:3], box[3:6], box[6:9], m.half, m.origin, m.version,
+                           m.caption, feature, m.confidence, cloud)

@@ -25,11 +25,12 @@ from typing import Sequence
 import numpy as np
 
 from mapping.model.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
+from mapping.model.agent import param_counts
 from mapping.model.fleet import ExtraLoss, fleet_train
 from mapping.team.channel import DELIVERED, DROPPED, OVER_BUDGET, Channel
 from mapping.team.config import TeamConfig
 from mapping.team.member import AgentStream, TeamMember, Vocabulary
-from mapping.team.messages import DegreeMessage, ParameterMessage, RayMessage
+from mapping.team.messages import DegreeMessage, MessageRules, ParameterMessage, RayMessage
 from mapping.team.report import (AgentSnapshot, AlignmentCounts, ConsistencyTerms, DeliveryRecord, LossTerms,
                                  RoundReport)
 from mapping.team.state import member_state, restore_member
@@ -150,8 +151,9 @@ class Team:
             self.members = [TeamMember(i, s, config, vocabulary, seed=seed * 100 + i, device=device, init_seed=init_seed)
                             for i, s in enumerate(streams)]
         self.channel_config = channel
+        rules = MessageRules(param_counts=param_counts(config.mapping), feature_dim=vocabulary.features.shape[1])
         self.channel = Channel(len(streams), channel.success_probability, channel.budget_bytes,
-                               seed=zlib.crc32(f"channel-{seed}".encode()))
+                               seed=zlib.crc32(f"channel-{seed}".encode()), rules=rules)
         self.round_index = 0
 
     @property

@@ -1,0 +1,150 @@
+"""The fields of a decoded message checked against what the receiving team can use (``MessageRules``).
+
+Each check names the field it refuses, so a faulty or hostile sender's message is dropped with a reason
+and never reaches ``receive_parameters`` or the renderer (an unknown bank, a NaN frame, a parameter
+vector of another width, or a ray count that would allocate without bound).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Mapping
+
+import numpy as np
+
+from mapping.data.poses import rigid_pose_problem
+from mapping.team.wire import MessageError, is_count
+
+BANKS = ("object", "structure")
+"""The instance network banks a payload may name (``mapping.model.agent``)."""
+META_FIELDS = frozenset({"id", "bank", "half", "origin", "version", "caption", "confidence", "cloud"})
+
+
+@dataclass(frozen=True)
+class MessageRules:
+    """What a receiving team can use; a message outside it is refused before anything is applied.
+
+    Attributes:
+        num_agents: sender, receiver and frame origins are agent indices below it (None: any).
+        param_counts: per bank, the length of one instance's parameter vector (None: any length).
+        feature_dim: the caption feature's length (None: any).
+        max_rays: poses x rays per pose that one ray message may ask the receiver to render.
+        max_image_side: the largest width or height the intrinsics may name.
+        max_caption_chars: the longest caption.
+    """
+
+    num_agents: int | None = None
+    param_counts: Mapping[str, int] | None = None
+    feature_dim: int | None = None
+    max_rays: int = 1 << 20
+    max_image_side: int = 1 << 14
+    max_caption_chars: int = 1000
+
+
+@dataclass(frozen=True)
+class InstanceMeta:
+    """One instance's scalar fields, checked."""
+
+    id: int
+    bank: str
+    half: float
+    origin: int
+    version: int
+    caption: str
+    confidence: float
+    cloud: bool
+
+
+def count_field(scalars: dict, name: str, upper: int | None = None) -> int:
+    """``scalars[name]`` if it is a non-negative integer (at most ``upper``)."""
+    value = scalars.get(name)
+    if not is_count(value) or (upper is not None and value > upper):
+        raise MessageError(f"field {name}: {str(value)[:40]} is not an integer in [0, {upper or 'inf'}]")
+    return value
+
+
+def agent_field(scalars: dict, name: str, rules: MessageRules) -> int:
+    """``scalars[name]`` if it is an agent index of the team."""
+    return count_field(scalars, name, None if rules.num_agents is None else rules.num_agents - 1)
+
+
+def finite_number(value, name: str, low: float = -math.inf, high: float = math.inf) -> float:
+    """``value`` as a float if it is a finite JSON number in [low, high] (bool is not one)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) \
+            or not low <= value <= high:
+        raise MessageError(f"field {name}: {str(value)[:40]} is not a finite number in [{low}, {high}]")
+    return float(value)
+
+
+def checked_array(arrays: dict[str, np.ndarray], name: str, shape: tuple[int | None, ...], floating: bool = True
+                  ) -> np.ndarray:
+    """``arrays[name]`` if it has ``shape`` (None: any length) and, for floats, only finite values."""
+    if name not in arrays:
+        raise MessageError(f"array {name} is missing")
+    a = arrays[name]
+    if a.ndim != len(shape) or any(want is not None and got != want for got, want in zip(a.shape, shape)):
+        want = "(" + ", ".join("n" if w is None else str(w) for w in shape) + ")"
+        raise MessageError(f"array {name}: shape {a.shape}, expected {want}")
+    if floating and (a.dtype.kind != "f" or not np.all(np.isfinite(a))):
+        raise MessageError(f"array {name}: expected finite floats, got {a.dtype} "
+                           f"{'with non-finite values' if a.dtype.kind == 'f' else ''}".rstrip())
+    return a
+
+
+def checked_ids(arrays: dict[str, np.ndarray], name: str) -> np.ndarray:
+    """``arrays[name]`` if it is a (n,) array of non-negative integers."""
+    a = checked_array(arrays, name, (None,), floating=False)
+    if a.dtype.kind not in "iu" or np.any(a < 0):
+        raise MessageError(f"array {name}: expected non-negative integers, got {a.dtype}")
+    return a.astype(np.int64)
+
+
+def rigid_poses(poses: np.ndarray) -> np.ndarray:
+    """``poses`` ((F, 4, 4)) if every one is a finite rigid transform."""
+    for k, pose in enumerate(poses):
+        problem = rigid_pose_problem(pose)
+        if problem is not None:
+            raise MessageError(f"array poses[{k}]: {problem}")
+    return poses
+
+
+def checked_intrinsics(value, rules: MessageRules) -> tuple[float, float, float, float, int, int]:
+    """(fx, fy, cx, cy, width, height): positive focal lengths, a centre inside the image, a bounded size."""
+    if not (isinstance(value, list) and len(value) == 6):
+        raise MessageError(f"field intrinsics: {str(value)[:60]} is not [fx, fy, cx, cy, width, height]")
+    width = count_field({"intrinsics width": value[4]}, "intrinsics width", rules.max_image_side)
+    height = count_field({"intrinsics height": value[5]}, "intrinsics height", rules.max_image_side)
+    if width < 1 or height < 1:
+        raise MessageError(f"field intrinsics: an image of {width} x {height} pixels")
+    fx = finite_number(value[0], "intrinsics fx", 1e-6)
+    fy = finite_number(value[1], "intrinsics fy", 1e-6)
+    cx = finite_number(value[2], "intrinsics cx", 0.0, float(width))
+    cy = finite_number(value[3], "intrinsics cy", 0.0, float(height))
+    return fx, fy, cx, cy, width, height
+
+
+def instance_meta(k: int, meta, rules: MessageRules) -> InstanceMeta:
+    """Instance ``k``'s scalar fields, each checked for type and range."""
+    if not isinstance(meta, dict) or set(meta) != META_FIELDS:
+        got = sorted(meta)[:10] if isinstance(meta, dict) else type(meta).__name__
+        raise MessageError(f"field instances[{k}]: expected the fields {sorted(META_FIELDS)}, got {got}")
+    banks = BANKS if rules.param_counts is None else tuple(rules.param_counts)
+    if meta["bank"] not in banks:
+        raise MessageError(f"field instances[{k}].bank: {str(meta['bank'])[:40]!r} is not one of {banks}")
+    caption = meta["caption"]
+    if not isinstance(caption, str) or len(caption) > rules.max_caption_chars:
+        raise MessageError(f"field instances[{k}].caption: expected text of at most {rules.max_caption_chars} "
+                           f"characters, got {type(caption).__name__}")
+    if not isinstance(meta["cloud"], bool):
+        raise MessageError(f"field instances[{k}].cloud: expected true or false")
+    where = f"instances[{k}]."
+    origin_limit = None if rules.num_agents is None else rules.num_agents - 1
+    return InstanceMeta(_count(meta, "id", where), meta["bank"],
+                        finite_number(meta["half"], where + "half", 1e-6, 1e4),
+                        _count(meta, "origin", where, origin_limit), _count(meta, "version", where),
+                        caption, finite_number(meta["confidence"], where + "confidence", 0.0, 1.0), meta["cloud"])
+
+
+def _count(meta: dict, name: str, where: str, upper: int | None = None) -> int:
+    return count_field({where + name: meta[name]}, where + name, upper)

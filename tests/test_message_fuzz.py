@@ -1,0 +1,206 @@
+"""Messages from a faulty or hostile sender: a seeded generator of structured headers (shapes, dtypes,
+nesting, every field's type and range) and the specific cases that crashed the receiver before."""
+
+from __future__ import annotations
+
+import copy
+import json
+import math
+import struct
+import warnings
+
+import numpy as np
+import pytest
+
+from mapping.model.agent import param_counts
+from mapping.model.agent_config import MappingConfig
+from mapping.team import (Channel, InstancePayload, MessageError, MessageRules, ParameterMessage, RayMessage,
+                          from_bytes, to_bytes)
+from mapping.team.messages import DegreeMessage, PointCloudMessage, replay_pixels
+
+COUNTS = param_counts(MappingConfig())
+FEATURE_DIM = 8
+RULES = MessageRules(num_agents=3, param_counts=COUNTS, feature_dim=FEATURE_DIM)
+
+
+def _payload(iid: int, bank: str = "object", cloud: bool = True) -> InstancePayload:
+    rng = np.random.default_rng(iid)
+    return InstancePayload(iid, bank, rng.normal(size=COUNTS[bank]).astype(np.float32), np.zeros(3, np.float32),
+                           np.ones(3, np.float32), np.full(3, 0.5, np.float32), 0.75, 1, 2, "a red mug",
+                           rng.normal(size=FEATURE_DIM).astype(np.float32), 0.4,
+                           rng.normal(size=(20, 3)).astype(np.float32) if cloud else None)
+
+
+def _valid_messages() -> list[bytes]:
+    pose = np.eye(4, dtype=np.float32)
+    pose[:3, 3] = [1.0, 2.0, 0.5]
+    return [to_bytes(ParameterMessage(0, 1, 3, [_payload(3), _payload(4, "structure", cloud=False)], degree=2)),
+            to_bytes(RayMessage(0, 1, 3, np.stack([pose, np.eye(4, dtype=np.float32)]),
+                                (100.0, 100.0, 80.0, 60.0, 160, 120), 7, 32)),
+            to_bytes(PointCloudMessage(0, 1, 3, np.zeros((5, 3), np.float32))),
+            to_bytes(DegreeMessage(0, 1, 3, np.array([3, 4]), np.array([1, 2]), np.array([1, 2])))]
+
+
+def _split(data: bytes) -> tuple[dict, bytes]:
+    start = len(b"OMMSG") + 1
+    (n,) = struct.unpack("<I", data[start:start + 4])
+    return json.loads(data[start + 4:start + 4 + n]), data[start + 4 + n:]
+
+
+def _join(header, body: bytes, raw: bytes | None = None) -> bytes:
+    blob = raw if raw is not None else json.dumps(header, allow_nan=True).encode()
+    return b"OMMSG" + bytes([1]) + struct.pack("<I", len(blob)) + blob + body
+
+
+HOSTILE = [None, True, False, -1, 0, 1, 2, 3, 7, 2**31, 2**32, 2**63, 2**64, 2**70, -2**70, 0.5, -0.0, 1e308,
+           -1e308, math.nan, math.inf, -math.inf, "", "x", "object", "structure", "global", "a" * 5000, [], [1],
+           [2**70, 3], [2**32, 2**32, 3], [1, 1, 1, 1, 1, 1, 1], {}, {"a": 1}, [[[[[]]]]], ["float32"]]
+
+
+def _deep(depth: int):
+    value: list = []
+    for _ in range(depth):
+        value = [value]
+    return value
+
+
+def _mutate(header: dict, body: bytes, rng: np.random.Generator) -> bytes:
+    """One structured mutation: a scalar, an instance field, an array entry, the nesting, or the body."""
+    h = copy.deepcopy(header)
+    pick = rng.integers(7)
+    value = HOSTILE[rng.integers(len(HOSTILE))]
+    if pick == 0:  # a top-level scalar
+        key = list(h["scalars"])[rng.integers(len(h["scalars"]))]
+        h["scalars"][key] = value
+    elif pick == 1 and h["scalars"].get("instances"):  # an instance's field
+        meta = h["scalars"]["instances"][rng.integers(len(h["scalars"]["instances"]))]
+        meta[list(meta)[rng.integers(len(meta))]] = value
+    elif pick == 2 and h["arrays"]:  # an array table entry: name, dtype, shape or offset
+        entry = h["arrays"][rng.integers(len(h["arrays"]))]
+        entry[rng.integers(4)] = value
+    elif pick == 3 and h["arrays"]:  # a shape made large, long or negative
+        entry = h["arrays"][rng.integers(len(h["arrays"]))]
+        entry[2] = [int(d) for d in rng.choice([0, 1, 3, 4, 9, 2**31, 2**40, 2**62, -1], size=rng.integers(0, 7))]
+    elif pick == 4:  # nesting far deeper than JSON's recursion limit, or a different layout
+        where = rng.integers(3)
+        if where == 0:
+            return _join(None, body, raw=b"[" * 100_000 + b"]" * 100_000)
+        h["scalars" if where == 1 else "arrays"] = _deep(int(rng.integers(1, 50)))
+    elif pick == 5:  # the body cut or grown
+        cut = int(rng.integers(0, len(body) + 1))
+        return _join(h, body[:cut] if rng.random() < 0.7 else body + bytes(int(rng.integers(1, 64))))
+    else:  # bytes of the header or body flipped
+        data = bytearray(_join(h, body))
+        for _ in range(int(rng.integers(1, 8))):
+            data[int(rng.integers(len(data)))] = int(rng.integers(256))
+        return bytes(data)
+    return _join(h, body)
+
+
+def _assert_usable(message) -> None:
+    """What a delivered message must be for the receiver: every field inside the rules."""
+    assert 0 <= message.sender < 3 and 0 <= message.receiver < 3
+    if isinstance(message, ParameterMessage):
+        for inst in message.instances:
+            assert inst.bank in COUNTS and len(inst.params) == COUNTS[inst.bank]
+            assert np.all(np.isfinite(inst.params)) and math.isfinite(inst.frame_half) and inst.frame_half > 0
+            assert 0.0 <= inst.confidence <= 1.0 and isinstance(inst.caption, str)
+            assert isinstance(inst.instance_id, int) and len(inst.caption_feature) == FEATURE_DIM
+    if isinstance(message, RayMessage):
+        assert len(message.poses) * message.rays_per_pose <= RULES.max_rays
+        replay_pixels(message)  # bounded
+
+
+def test_ten_thousand_structured_hostile_messages_are_refused_or_usable_and_never_raise_else():
+    rng = np.random.default_rng(2026)
+    valid = [_split(data) for data in _valid_messages()]
+    kinds = ["params", "rays", "points", "degrees"]
+    refused = delivered = 0
+    for case in range(10_000):
+        k = int(rng.integers(len(valid)))
+        data = _mutate(*valid[k], rng)
+        try:
+            message = from_bytes(data, RULES)
+        except MessageError:
+            refused += 1
+        else:
+            delivered += 1
+            _assert_usable(message)
+        channel = Channel(3, rules=RULES)
+        with warnings.catch_warnings():  # one refusal warning per refused message
+            warnings.simplefilter("ignore")
+            d = channel.transmit_bytes(0, 1, kinds[k], data)  # never raises: refused means dropped
+        assert d.status in ("delivered", "dropped"), case
+        assert (d.message is None) == (d.status == "dropped")
+        if d.message is not None:
+            _assert_usable(d.message)
+    assert refused > 7_000 and delivered > 100  # most mutations break a rule; some leave a usable message
+
+
+def _set_meta(field: str, value):
+    def change(header: dict) -> dict:
+        header["scalars"]["instances"][0][field] = value
+        return header
+    return change
+
+
+@pytest.mark.parametrize("field, value, error", [
+    ("bank", "global", "instances\\[0\\].bank: 'global' is not one of"),
+    ("half", math.nan, "instances\\[0\\].half: nan is not a finite number"),
+    ("confidence", math.inf, "instances\\[0\\].confidence: inf"),
+    ("id", "x", "instances\\[0\\].id: x is not an integer"),
+    ("caption", ["a", "mug"], "instances\\[0\\].caption: expected text"),
+    ("origin", 5, "instances\\[0\\].origin: 5 is not an integer in \\[0, 2\\]"),
+    ("cloud", 1, "instances\\[0\\].cloud: expected true or false"),
+])
+def test_each_instance_field_is_checked_and_the_message_dropped(field, value, error):
+    header, body = _split(_valid_messages()[0])
+    data = _join(_set_meta(field, value)(header), body)
+    with pytest.raises(MessageError, match=error):
+        from_bytes(data, RULES)
+    with pytest.warns(UserWarning, match="refused"):
+        assert Channel(3, rules=RULES).transmit_bytes(0, 1, "params", data).status == "dropped"
+
+
+def test_sizes_that_overflow_int64_nesting_and_unbounded_rays_are_refused():
+    header, body = _split(_valid_messages()[0])
+    for shape in ([2**70, 3], [2**32, 2**32, 3], [2**62, 2**62]):
+        h = copy.deepcopy(header)
+        h["arrays"][0][2] = shape
+        with pytest.raises(MessageError, match="truncated|shape"):
+            from_bytes(_join(h, body), RULES)
+    with pytest.raises(MessageError, match="corrupt message header"):
+        from_bytes(_join(None, body, raw=b"[" * 100_000 + b"]" * 100_000))
+    rays, rays_body = _split(_valid_messages()[1])
+    rays["scalars"]["rays_per_pose"] = 10**15
+    with pytest.raises(MessageError, match="rays_per_pose"):
+        from_bytes(_join(rays, rays_body), RULES)
+    params = ParameterMessage(0, 1, 0, [_payload(3)])
+    params.instances[0].params = params.instances[0].params[:5]
+    with pytest.raises(MessageError, match="0.params: 5 values, a object network has"):
+        from_bytes(to_bytes(params), RULES)
+    twice = ParameterMessage(0, 1, 0, [_payload(3), _payload(3)])
+    with pytest.raises(MessageError, match="appears twice"):
+        from_bytes(to_bytes(twice), RULES)
+
+
+def test_a_message_naming_another_link_or_kind_is_dropped():
+    data = _valid_messages()[0]  # sender 0, receiver 1
+    with pytest.warns(UserWarning, match="sender, receiver: 0 -> 1 on the link 2 -> 1"):
+        assert Channel(3, rules=RULES).transmit_bytes(2, 1, "params", data).status == "dropped"
+    with pytest.warns(UserWarning, match="a params message sent as rays"):
+        assert Channel(3, rules=RULES).transmit_bytes(0, 1, "rays", data).status == "dropped"
+
+
+@pytest.mark.parametrize("pose_change, error", [
+    (lambda p: p.__setitem__((0, 0), 5.0), "rotation"),
+    (lambda p: p.__setitem__((0, 1), 1e30), "rotation has an entry beyond 1"),
+    (lambda p: p.__setitem__((1, 3), 1e30), "over 100000 m"),
+    (lambda p: p.__setitem__((2, 2), -1.0), "reflection"),
+])
+def test_ray_messages_with_non_rigid_or_huge_poses_are_refused(pose_change, error):
+    pose = np.eye(4, dtype=np.float64)
+    pose_change(pose)
+    message = RayMessage(0, 1, 0, pose[None].astype(np.float32), (100.0, 100.0, 80.0, 60.0, 160, 120), 7, 4)
+    with pytest.raises(MessageError, match=error):
+        from_bytes(to_bytes(message), RULES)
