@@ -321,6 +321,15 @@ def test_non_finite_and_non_rigid_replica_poses(tmp_path):
     write_trajectory(tmp_path / "traj_w_c.txt", rigid_poses(6).transpose(0, 2, 1))  # column-major
     with pytest.raises(DatasetError, match=m("traj_w_c.txt") + ".*last pose row"):
         load_replica(tmp_path, intrinsics=TINY_CAM)
+    for (k, i, j), value, message in (((1, 0, 0), 5.0, "rotation has an entry beyond 1"),  # scaled
+                                      ((2, 0, 1), 1e308, "rotation has an entry beyond 1"),  # points overflow
+                                      ((3, 1, 1), 0.9, "rotation is not orthonormal"),  # squashed, entries <= 1
+                                      ((5, 0, 3), 1e200, "over 100000 m")):
+        poses = rigid_poses(6)
+        poses[k, i, j] = value
+        write_trajectory(tmp_path / "traj_w_c.txt", poses)
+        with pytest.raises(DatasetError, match=m(f"traj_w_c.txt:pose {k}") + f".*{message}"):
+            load_replica(tmp_path, intrinsics=TINY_CAM)
 
 
 def test_nice_slam_trajectory_count(tmp_path):

@@ -206,12 +206,17 @@ def test_world_cache_corrupt_entry_is_rebuilt_with_a_warning(tmp_path):
     e.reset(seed=0)
     entries = list(world_cache_dir(tmp_path).glob("*.npz"))
     assert len(entries) == 1
-    entries[0].write_bytes(b"not an npz")
-    fresh = parallel_env(preset="rl_tiny", cache_dir=str(tmp_path))
-    with pytest.warns(WorldCacheWarning, match="unreadable"):
-        fresh.reset(seed=0)
-    assert fresh.last_cache_hit is False
-    assert clear_world_cache(tmp_path) > 0 and not list(world_cache_dir(tmp_path).glob("*.npz"))
+    whole = entries[0].read_bytes()
+    for broken in (b"not an npz", whole[: len(whole) // 2], whole[:-100]):  # garbage, and truncated zips
+        entries[0].write_bytes(broken)
+        fresh = parallel_env(preset="rl_tiny", cache_dir=str(tmp_path))
+        with pytest.warns(WorldCacheWarning, match="unreadable"):
+            fresh.reset(seed=0)
+        assert fresh.last_cache_hit is False and entries[0].read_bytes() == whole  # rebuilt as it was
+    own = world_cache_dir(tmp_path) / "my_results.npz"  # a user's file beside the entries
+    own.write_bytes(b"keep me")
+    assert clear_world_cache(tmp_path) == len(whole)
+    assert [p.name for p in world_cache_dir(tmp_path).glob("*.npz")] == ["my_results.npz"]
 
 
 def test_world_cache_key_changes_with_what_shapes_the_world(tmp_path):

@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 from PIL import Image, UnidentifiedImageError
 
+from mapping.data.poses import rigid_pose_problem
 from mapping.data.frame import Intrinsics
 
 IMAGE_EXTS = (".png", ".jpg", ".jpeg")
@@ -126,12 +127,11 @@ def read_matrix_file(path: Path) -> np.ndarray:
 
 
 def check_pose(pose: np.ndarray, path: Path, where: str = "") -> None:
-    """Reject non-finite poses and matrices whose last row is not [0, 0, 0, 1] (e.g. column-major)."""
-    loc = f"{path}:{where}" if where else str(path)
-    if not np.all(np.isfinite(pose)):
-        raise DatasetError(f"{loc}: pose has non-finite entries (nan/inf)")
-    if not np.allclose(pose[3], [0.0, 0.0, 0.0, 1.0], atol=1e-6):
-        raise DatasetError(f"{loc}: last pose row is {pose[3].tolist()}, expected [0, 0, 0, 1] (column-major file?)")
+    """Reject poses that are not finite rigid transforms (``mapping.data.poses``): non-finite entries, a last
+    row other than [0, 0, 0, 1] (e.g. column-major), a scaled or sheared rotation, a huge translation."""
+    problem = rigid_pose_problem(pose)
+    if problem is not None:
+        raise DatasetError(f"{f'{path}:{where}' if where else path}: {problem}")
 
 
 def as_intrinsics(value: Intrinsics | Mapping[str, float] | Sequence[float]) -> Intrinsics:

@@ -17,7 +17,9 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import re
 import warnings
+import zipfile
 from dataclasses import asdict
 from importlib import metadata
 from pathlib import Path
@@ -31,6 +33,8 @@ from openmulti_env.world.visibility import ObservableSurface
 from openmulti_env.world.world import World, WorldConfig
 
 CACHE_FORMAT = 1
+ENTRY_NAME = re.compile(r"[0-9a-f]{32}\.npz")
+"""What an entry's file is called (``world_cache_key``): the only files clearing and trimming touch."""
 _KEYS = ("vertices", "faces", "face_colors", "face_instance_ids", "visible", "viewpoints", "path_lengths", "poses")
 
 
@@ -67,7 +71,7 @@ def cached_world(scene: str, seed: int, config: WorldConfig, cache_dir: str | Pa
             world = _read(entry, scene, seed, config)
             os.utime(entry)  # least recently used goes first
             return world, True
-        except (OSError, ValueError, KeyError, EOFError) as exc:
+        except (OSError, ValueError, KeyError, EOFError, IndexError, zipfile.BadZipFile) as exc:
             warnings.warn(f"world cache entry {entry} is unreadable ({exc}); rebuilding it", WorldCacheWarning,
                           stacklevel=2)
     say(f"[openmulti] building the world of {scene!r} (seed {seed}, {config.num_agents} agents): culling the "
@@ -85,10 +89,11 @@ def cached_world(scene: str, seed: int, config: WorldConfig, cache_dir: str | Pa
 
 
 def clear_world_cache(cache_dir: str | Path | None = None) -> int:
-    """Delete every entry; returns the bytes freed."""
+    """Delete every entry (files named as ``world_cache_key`` names them; nothing else in the folder);
+    returns the bytes freed."""
     folder = world_cache_dir(cache_dir)
     freed = 0
-    for path in folder.glob("*.npz"):
+    for path in cache_entries(folder):
         freed += path.stat().st_size
         path.unlink(missing_ok=True)
     return freed
@@ -96,7 +101,7 @@ def clear_world_cache(cache_dir: str | Path | None = None) -> int:
 
 def trim_world_cache(folder: Path, max_mb: float, keep: Path | None = None) -> None:
     """Remove the least recently used entries until the folder holds at most ``max_mb``."""
-    entries = sorted(folder.glob("*.npz"), key=lambda p: p.stat().st_mtime)
+    entries = sorted(cache_entries(folder), key=lambda p: p.stat().st_mtime)
     total = sum(p.stat().st_size for p in entries)
     for path in entries:
         if total <= max_mb * 1e6:
@@ -105,6 +110,12 @@ def trim_world_cache(folder: Path, max_mb: float, keep: Path | None = None) -> N
             continue
         total -= path.stat().st_size
         path.unlink(missing_ok=True)
+
+
+def cache_entries(folder: Path) -> list[Path]:
+    """The entries in ``folder``: files named as ``world_cache_key`` names them (a user's own ``.npz``
+    files beside them are never touched)."""
+    return [p for p in folder.glob("*.npz") if ENTRY_NAME.fullmatch(p.name) and p.is_file()]
 
 
 def _write(entry: Path, world: World) -> None:
