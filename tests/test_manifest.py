@@ -84,6 +84,21 @@ def test_overlapping_objects_are_refused_naming_both(tmp_path):
     (lambda d: d.update(up_axis="w"), "up_axis"),
     (lambda d: d.pop("room"), "'room'"),
     (lambda d: d["objects"][0].pop("height_m"), "larger than the room"),
+    # every wrong type names its field (each gave a bare ValueError, a traceback or a silent NaN before)
+    (lambda d: d["objects"][0].update(height_m="tall"), r"objects\[0\]\.height_m: expected a positive number"),
+    (lambda d: d["objects"][0].update(height_m=[1]), r"objects\[0\]\.height_m: expected a positive number"),
+    (lambda d: d["objects"][0].update(height_m=True), r"objects\[0\]\.height_m: expected a positive number"),
+    (lambda d: d["objects"][0].update(yaw_deg={}), r"objects\[0\]\.yaw_deg: expected a finite number"),
+    (lambda d: d["objects"][0].update(yaw_deg=float("nan")), r"objects\[0\]\.yaw_deg: expected a finite number"),
+    (lambda d: d["objects"][0].update(color=[2.0, 0.5, 0.5]), r"objects\[0\]\.color: expected three numbers in"),
+    (lambda d: d["objects"][0].update(color=[0.5, 0.5]), r"objects\[0\]\.color"),
+    (lambda d: d["objects"][0].update(category={"a": 1}), r"objects\[0\]\.category: expected a non-empty string"),
+    (lambda d: d["objects"][0].update(category=""), r"objects\[0\]\.category: expected a non-empty string"),
+    (lambda d: d["objects"][0].update(caption=["a", "chair"]), r"objects\[0\]\.caption: expected a non-empty"),
+    (lambda d: d["objects"][0].update(material=3), r"objects\[0\]\.material: expected a string"),
+    (lambda d: d["objects"][0].update(mesh=["a.obj"]), r"objects\[0\]\.mesh: expected a non-empty string"),
+    (lambda d: d.update(name=["x"]), r"room.json\.name: expected a non-empty string"),
+    (lambda d: d.update(up_axis=3), r"room.json\.up_axis: expected a non-empty string"),
 ])
 def test_bad_manifests_give_clear_errors(tmp_path, change, message):
     _write_meshes(tmp_path / "meshes")

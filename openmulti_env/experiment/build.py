@@ -3,6 +3,7 @@ time (``resolved_team``): the one place every entry point builds its settings.""
 
 from __future__ import annotations
 
+import math
 import typing
 from dataclasses import replace
 from typing import Any, Mapping
@@ -41,6 +42,21 @@ def experiment(preset: str = "fast", overrides: Mapping[str, Any] | None = None,
         if success is not None:
             tree = replace(tree, channel=replace(tree.channel, success_probability=success))
     return check(tree)
+
+
+def device_problem(device: str) -> str | None:
+    """Why ``device`` names no device a run can use ("auto", "cpu", "cuda", "cuda:N", "mps"), or None."""
+    import torch  # noqa: PLC0415
+
+    if device == "auto":
+        return None
+    try:
+        kind = torch.device(device).type
+    except (RuntimeError, TypeError, ValueError):
+        return f"{device!r} is not a device; use 'auto', 'cpu', 'cuda' or 'cuda:N'"
+    if kind not in ("cpu", "cuda", "mps"):
+        return f"{device!r} is a {kind} device; runs use 'auto', 'cpu', 'cuda' or 'cuda:N'"
+    return None
 
 
 def admits_none(key: str) -> bool:
@@ -93,6 +109,14 @@ def check(tree: Experiment) -> Experiment:
                         ("team.consistency.rays_per_pose", tree.team.consistency.rays_per_pose),
                         ("env.probe_points", tree.env.probe_points)):
         need(value >= 1, f"{path} must be >= 1, got {value}")
+    for path, value in (("env.comm_cost_per_mb", tree.env.comm_cost_per_mb),
+                        ("env.budget_penalty", tree.env.budget_penalty)):
+        need(math.isfinite(value) and value >= 0, f"{path} must be a finite number >= 0, got {value}")
+    changed = tree.team.exchange.changed_only
+    need(changed is None or (math.isfinite(changed) and changed >= 0),
+         f"team.exchange.changed_only must be None or a finite number >= 0, got {changed}")
+    need(tree.run.threads is None or tree.run.threads >= 1, f"run.threads must be >= 1 or None, got {tree.run.threads}")
+    need(device_problem(tree.run.device) is None, f"run.device: {device_problem(tree.run.device)}")
     need(tree.channel.budget_mb is not None or not policy_needs_budget(tree.run.policy),
          "policy 'budget' needs a budget: --comm-budget-mb MB (channel.budget_mb, the megabytes each agent may send)")
     return tree

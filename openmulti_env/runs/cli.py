@@ -339,7 +339,7 @@ def main(argv: list[str] | None = None) -> int:
         options = _subparser(parser, args.command)._option_string_actions
         print(f"openmulti {args.command}: error: {spelled_for_command_line(str(exc), options)}", file=sys.stderr)
         return 2
-    except (ValueError, FileNotFoundError, KeyError, TextEncoderError, ImageEncoderError) as exc:
+    except (ValueError, OSError, KeyError, TextEncoderError, ImageEncoderError) as exc:
         print(f"openmulti {args.command}: error: {exc}", file=sys.stderr)
         return 2
 

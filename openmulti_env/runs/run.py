@@ -6,6 +6,7 @@ source, the team settings it resolves and a schedule, and writes the tree whole 
 
 from __future__ import annotations
 
+import tempfile
 import time
 import warnings
 from dataclasses import asdict, dataclass, replace
@@ -49,7 +50,19 @@ def run_data(data: str | Path, agents: int, policy: str, preset: str, seed: int,
 def run_experiment(tree: Experiment) -> dict:
     """The run ``tree`` describes: the simulator's scene, or ``tree.data.path``; returns the metrics written to
     ``tree.run.out/metrics.json`` (the tree itself goes to ``config.yaml`` beside it)."""
+    writable_folder(Path(tree.run.out), "run.out (--out)")  # before minutes of world building, not after
     return (_run_data_set if tree.data.path is not None else _run_scene)(tree)
+
+
+def writable_folder(folder: Path, name: str) -> None:
+    """Create ``folder`` if needed and make sure files can be written in it; ValueError naming ``name``."""
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        with tempfile.NamedTemporaryFile(dir=folder, prefix=".write-check-"):
+            pass
+    except OSError as exc:
+        reason = "it is a file" if folder.is_file() else (exc.strerror or type(exc).__name__).lower()
+        raise ValueError(f"{name} {str(folder)!r} cannot hold the run's files: {reason}") from None
 
 
 def _run_scene(tree: Experiment) -> dict:

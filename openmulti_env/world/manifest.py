@@ -60,6 +60,23 @@ def _vector(value: Any, length: tuple[int, ...], where: str) -> np.ndarray:
     return arr
 
 
+def _number(obj: dict, key: str, where: str, default: float | None = None, positive: bool = False) -> float:
+    """``obj[key]`` if it is a finite number (positive: above 0); ManifestError naming the field otherwise."""
+    value = obj.get(key, default)
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value) \
+            or (positive and value <= 0):
+        raise ManifestError(f"{where}.{key}: expected a {'positive' if positive else 'finite'} number, got {value!r}")
+    return float(value)
+
+
+def _text(obj: dict, key: str, where: str, default: str | None = None) -> str:
+    """``obj[key]`` if it is a non-empty string; ManifestError naming the field otherwise."""
+    value = obj.get(key, default)
+    if not isinstance(value, str) or not value.strip():
+        raise ManifestError(f"{where}.{key}: expected a non-empty string, got {value!r}")
+    return value
+
+
 def up_axis_rotation(up_axis: str) -> np.ndarray:
     """(4, 4) rotation taking the mesh files' ``up_axis`` to +z."""
     if up_axis not in UP_AXES:
@@ -129,7 +146,7 @@ def load_manifest_scene(path: str | Path) -> Scene:
     size = _vector(room["size_m"], (3,), f"{path}: room.size_m")
     if np.any(size <= 0.5):
         raise ManifestError(f"{path}: room.size_m must be larger than 0.5 m on every axis, got {size.tolist()}")
-    up = up_axis_rotation(str(data.get("up_axis", "z")))
+    up = up_axis_rotation(_text(data, "up_axis", str(path), "z"))
     objects = data.get("objects")
     if not isinstance(objects, list) or not objects:
         raise ManifestError(f"{path}: 'objects' must be a non-empty list")
@@ -143,14 +160,17 @@ def load_manifest_scene(path: str | Path) -> Scene:
         for key in ("mesh", "category", "position_m"):
             if key not in obj:
                 raise ManifestError(f"{where}: missing '{key}'")
-        mesh = _load_mesh((path.parent / str(obj["mesh"])).resolve(), where)
+        category = _text(obj, "category", where)
+        caption = _text(obj, "caption", where, f"a {category}")
+        material = obj.get("material", "")
+        if not isinstance(material, str):
+            raise ManifestError(f"{where}.material: expected a string, got {material!r}")
+        mesh = _load_mesh((path.parent / _text(obj, "mesh", where)).resolve(), where)
         mesh.apply_transform(up)
         mesh.apply_translation(-mesh.bounds.mean(axis=0) * [1, 1, 0] - [0, 0, mesh.bounds[0, 2]])
         height = float(mesh.extents[2])
         if "height_m" in obj:
-            target = float(obj["height_m"])
-            if not np.isfinite(target) or target <= 0:
-                raise ManifestError(f"{where}: height_m must be a positive number, got {obj['height_m']!r}")
+            target = _number(obj, "height_m", where, positive=True)
             if height <= 1e-9:
                 raise ManifestError(f"{where}: mesh {obj['mesh']} is flat along up_axis; cannot scale it to height_m")
             mesh.apply_scale(target / height)
@@ -159,7 +179,7 @@ def load_manifest_scene(path: str | Path) -> Scene:
                 f"{where}: mesh {obj['mesh']} is {mesh.extents.max():.1f} units across, larger than the room: "
                 "give height_m (the mesh's units are probably not metres) or check up_axis"
             )
-        yaw = float(obj.get("yaw_deg", 0.0))
+        yaw = _number(obj, "yaw_deg", where, 0.0)
         mesh.apply_transform(trimesh.transformations.rotation_matrix(np.radians(yaw), [0, 0, 1]))
         pos = _vector(obj["position_m"], (2, 3), f"{where}.position_m")
         z = pos[2] if len(pos) == 3 else 0.0
@@ -171,10 +191,10 @@ def load_manifest_scene(path: str | Path) -> Scene:
                 f"(bounds {np.round(mesh.bounds, 3).tolist()}, room {size.tolist()})"
             )
         color = _vector(obj["color"], (3,), f"{where}.color") if "color" in obj else None
+        if color is not None and (np.any(color < 0) or np.any(color > 1)):
+            raise ManifestError(f"{where}.color: expected three numbers in [0, 1] (RGB), got {obj['color']!r}")
         rgb = _face_colors(mesh, color)
-        category = str(obj["category"])
-        caption = str(obj.get("caption") or f"a {category}")
-        inst = Instance(len(instances) + 1, category, caption, rgb, "", str(obj.get("material", "")), mesh, [mesh])
+        inst = Instance(len(instances) + 1, category, caption, rgb, "", material, mesh, [mesh])
         for other in instances[n_structure:]:
             if surfaces_overlap(inst.mesh, other.mesh):
                 raise ManifestError(
@@ -182,4 +202,4 @@ def load_manifest_scene(path: str | Path) -> Scene:
                     "move one of them"
                 )
         instances.append(inst)
-    return Scene(str(data.get("name", path.stem)), tuple(float(s) for s in size), instances, None)
+    return Scene(_text(data, "name", str(path), path.stem), tuple(float(s) for s in size), instances, None)
