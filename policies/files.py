@@ -14,6 +14,8 @@ import os
 import tempfile
 from pathlib import Path
 
+import torch
+
 from policies.network import CommPolicyNetwork, NetworkConfig
 from policies.observation import AGENT_FEATURES, LINK_FEATURES, MAP_CHANNELS
 from policies.scripted import PolicyError
@@ -88,8 +90,16 @@ def load_policy(path: str | Path, num_agents: int | None = None) -> tuple[CommPo
                           "changed or truncated")
     try:
         config = NetworkConfig.from_dict(record["architecture"])
+        weights = load(blob)
+        with torch.device("meta"):  # shapes only: a crafted architecture allocates nothing before the check
+            expected = {k: tuple(v.shape) for k, v in CommPolicyNetwork(config).state_dict().items()}
+        got = {k: tuple(v.shape) for k, v in weights.items()}
+        if got != expected:
+            wrong = sorted(k for k in set(got) | set(expected) if got.get(k) != expected.get(k))[:3]
+            raise ValueError(f"tensors {wrong}: the file has {[got.get(k) for k in wrong]}, the architecture "
+                             f"{[expected.get(k) for k in wrong]}")
         network = CommPolicyNetwork(config)
-        network.load_state_dict(load(blob))
+        network.load_state_dict(weights)
     except (KeyError, TypeError, ValueError, RuntimeError, SafetensorError) as exc:
         raise PolicyError(f"{json_path}: the weights do not fit the recorded architecture ({exc})") from None
     network.eval()

@@ -180,6 +180,30 @@ def test_the_round_form_draws_one_decision_per_agent_and_round_trips(tmp_path):
         load_policy(tmp_path / "bad.json")
 
 
+def test_a_crafted_architecture_is_refused_before_anything_of_its_size_is_built(tmp_path, monkeypatch):
+    import policies.files as files
+
+    network = CommPolicyNetwork(NetworkConfig(len(MAP_CHANNELS), comm_size(3), 4))
+    path = save_policy(tmp_path / "small", network, 3, {"command": "test"})
+    record = json.loads(path.read_text())
+    huge = {**record, "architecture": {**record["architecture"], "features": 20_000, "map_features": 20_000,
+                                        "comm_features": 20_000}}
+    (tmp_path / "huge.json").write_text(json.dumps(huge))
+    (tmp_path / "huge.safetensors").write_bytes((tmp_path / "small.safetensors").read_bytes())
+    built = []
+
+    class Watched(files.CommPolicyNetwork):
+        def __init__(self, config):
+            super().__init__(config)
+            built.append(next(self.parameters()).device.type)
+
+    monkeypatch.setattr(files, "CommPolicyNetwork", Watched)
+    with pytest.raises(PolicyError, match="do not fit the recorded architecture.*tensors"):
+        load_policy(tmp_path / "huge.json")
+    assert built == ["meta"]  # only its shapes: 20,000-wide layers would take about 1.8 GB
+    assert load_policy(path)[1]["num_agents"] == 3 and built == ["meta", "meta", "cpu"]  # a fitting file: built
+
+
 def test_the_round_gate_is_a_parallel_env_that_sends_everything_or_nothing(tmp_path):
     from pettingzoo.test import parallel_api_test
 
