@@ -186,6 +186,8 @@ def train(env_factory: Callable[[int], object], config: TrainConfig, out: str | 
     from policies.gate import GatedFactory, check_action_form  # noqa: PLC0415
     from policies.network import NetworkConfig  # noqa: PLC0415
     from policies.observation import MAP_CHANNELS  # noqa: PLC0415
+    from policies.safe_checkpoint import (UnsafeCheckpointError, load_training_state,  # noqa: PLC0415
+                                          refuse_pickled_checkpoint, save_training_state)
     from policies.sb3_vec import sb3_vec_env_from_factory  # noqa: PLC0415
 
     out = Path(out)
@@ -202,19 +204,26 @@ def train(env_factory: Callable[[int], object], config: TrainConfig, out: str | 
                                    actions=entries, action_form=config.action_form).as_dict()
 
     # ---- PPO, fresh or from the last checkpoint ----------------------------------------------------------
-    checkpoint = out / "checkpoint.zip"
+    # (tensors only: a checkpoint is read with weights_only=True, so resuming never runs code)
+    checkpoint = out / "checkpoint.pt"
+    refuse_pickled_checkpoint(out / "checkpoint.zip")
     log = EpisodeLog(out / "log.csv", num_agents)
+    model = PPO("MultiInputPolicy", vec, n_steps=config.n_steps, batch_size=config.batch_size,
+                n_epochs=config.n_epochs, learning_rate=config.learning_rate, gamma=config.gamma,
+                gae_lambda=config.gae_lambda, ent_coef=config.ent_coef, clip_range=config.clip_range,
+                device="cpu", verbose=0,
+                policy_kwargs=dict(features_extractor_class=features_extractor_class(),
+                                   features_extractor_kwargs=dict(config=network_config),
+                                   net_arch=dict(pi=[], vf=[64])))
     if checkpoint.exists():
-        model = PPO.load(checkpoint, env=vec, device="cpu")
+        state, counters = load_training_state(checkpoint)
+        try:
+            model.set_parameters(state, exact_match=True, device="cpu")
+            model.num_timesteps, model._n_updates = counters["num_timesteps"], counters["n_updates"]
+        except (KeyError, ValueError, RuntimeError, TypeError) as exc:
+            raise UnsafeCheckpointError(f"{checkpoint} does not fit this run's policy ({exc}); delete it (or train "
+                                        "into a new --out) to start again") from None
         print(f"[openmulti] resumed training at {model.num_timesteps // num_agents} env steps from {checkpoint}")
-    else:
-        model = PPO("MultiInputPolicy", vec, n_steps=config.n_steps, batch_size=config.batch_size,
-                    n_epochs=config.n_epochs, learning_rate=config.learning_rate, gamma=config.gamma,
-                    gae_lambda=config.gae_lambda, ent_coef=config.ent_coef, clip_range=config.clip_range,
-                    device="cpu", verbose=0,
-                    policy_kwargs=dict(features_extractor_class=features_extractor_class(),
-                                       features_extractor_kwargs=dict(config=network_config),
-                                       net_arch=dict(pi=[], vf=[64])))
 
     class Logging(BaseCallback):
         def _on_step(self) -> bool:
@@ -232,8 +241,8 @@ def train(env_factory: Callable[[int], object], config: TrainConfig, out: str | 
             before = model.num_timesteps
             model.learn(total_timesteps=config.chunk_env_steps * num_agents, reset_num_timesteps=False,
                         callback=Logging())
-            model.save(out / "checkpoint.tmp.zip")
-            os.replace(out / "checkpoint.tmp.zip", checkpoint)
+            save_training_state(checkpoint, model.get_parameters(),
+                                {"num_timesteps": int(model.num_timesteps), "n_updates": int(model._n_updates)})
             env_steps = model.num_timesteps // num_agents
             record = {**settings, "env_steps": env_steps, "episodes": len(log.rows),
                       "rolling_return": log.rolling_return(config.rolling)}

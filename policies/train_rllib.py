@@ -25,6 +25,7 @@ from typing import Callable
 
 import numpy as np
 
+from policies.safe_checkpoint import sign_checkpoint, verify_checkpoint
 from policies.train import EpisodeLog, TrainConfig, claim_run_folder
 
 ENV_NAME = "openmulti_comm"
@@ -70,6 +71,7 @@ def _save_checkpoint(algo, path: Path) -> None:
     tmp, old = path.with_name(path.name + ".tmp"), path.with_name(path.name + ".old")
     shutil.rmtree(tmp, ignore_errors=True)
     algo.save_to_path(str(tmp.resolve()))
+    sign_checkpoint(tmp)  # restored only with this signature (policies.safe_checkpoint)
     if path.exists():
         shutil.rmtree(old, ignore_errors=True)  # left by a kill after an earlier swap
         os.replace(path, old)
@@ -170,6 +172,7 @@ def train_rllib(env_factory: Callable[[int], object], config: TrainConfig, out: 
         # ---- fresh, or from the last checkpoint ------------------------------------------------------------
         env_steps = 0
         if checkpoint.exists():
+            verify_checkpoint(checkpoint)  # RLlib unpickles: only a checkpoint this user's key signed
             algo.restore_from_path(str(checkpoint.resolve()))
             env_steps = max(resumed_at, _sampled(algo, ENV_RUNNER_RESULTS, NUM_ENV_STEPS_SAMPLED_LIFETIME))
             print(f"[openmulti] resumed RLlib training at {env_steps} env steps from {checkpoint}")

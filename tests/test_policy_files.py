@@ -243,3 +243,58 @@ def test_training_in_the_round_form_ships_a_policy_that_sends_all_or_nothing(tmp
     with pytest.raises(ValueError, match="other settings"):  # a run folder keeps its action form
         train(factory, TrainConfig(**{**config.__dict__, "action_form": "entries"}), tmp_path / "run", {},
               progress=False)
+
+
+class _RunsCode:
+    """What a crafted checkpoint carries: unpickling it calls ``Path.touch`` on a marker file."""
+
+    def __init__(self, marker):
+        self.marker = marker
+
+    def __reduce__(self):
+        from pathlib import Path
+
+        return Path.touch, (Path(self.marker),)
+
+
+def test_training_checkpoints_never_run_code_on_resume(tmp_path):
+    torch = pytest.importorskip("torch")
+    from policies.safe_checkpoint import (UnsafeCheckpointError, load_training_state, refuse_pickled_checkpoint,
+                                          save_training_state, sign_checkpoint, verify_checkpoint)
+
+    state = {"policy": {"w": torch.arange(6.0).reshape(2, 3)}, "policy.optimizer": {"param_groups": [{"lr": 3e-4}]}}
+    save_training_state(tmp_path / "checkpoint.pt", state, {"num_timesteps": 32, "n_updates": 4})
+    back, counters = load_training_state(tmp_path / "checkpoint.pt")
+    assert torch.equal(back["policy"]["w"], state["policy"]["w"]) and counters == {"num_timesteps": 32, "n_updates": 4}
+    marker = tmp_path / "ran"
+    torch.save({"format": "openmulti.training-checkpoint", "version": 1, "counters": {},
+                "state": _RunsCode(str(marker))}, tmp_path / "crafted.pt")
+    torch.load(tmp_path / "crafted.pt", weights_only=False)  # what a pickle load would do: the payload runs
+    assert marker.exists()
+    marker.unlink()
+    with pytest.raises(UnsafeCheckpointError, match="objects other than tensors.*could run code.*start again"):
+        load_training_state(tmp_path / "crafted.pt")
+    assert not marker.exists()
+    (tmp_path / "checkpoint.zip").write_bytes(b"PK\x03\x04 an older release's SB3 checkpoint")
+    with pytest.raises(UnsafeCheckpointError, match="pickled SB3 checkpoint.*not read.*checkpoint.pt"):
+        refuse_pickled_checkpoint(tmp_path / "checkpoint.zip")
+    (tmp_path / "truncated.pt").write_bytes((tmp_path / "checkpoint.pt").read_bytes()[:100])
+    with pytest.raises(UnsafeCheckpointError, match="corrupt or truncated"):
+        load_training_state(tmp_path / "truncated.pt")
+
+    # RLlib's folders restore by unpickling: only one this user's key signed, unchanged, is restored
+    folder, keys = tmp_path / "rllib", tmp_path / "keys"
+    (folder / "learner").mkdir(parents=True)
+    (folder / "learner" / "state.pkl").write_bytes(b"pickled state")
+    with pytest.raises(UnsafeCheckpointError, match="no signature"):
+        verify_checkpoint(folder, keys)
+    sign_checkpoint(folder, keys)
+    verify_checkpoint(folder, keys)
+    assert oct((keys / "checkpoint-signing.key").stat().st_mode & 0o777) == "0o600"
+    (folder / "learner" / "state.pkl").write_bytes(b"crafted pickle")
+    with pytest.raises(UnsafeCheckpointError, match="changed after it was written"):
+        verify_checkpoint(folder, keys)
+    (folder / "learner" / "state.pkl").write_bytes(b"pickled state")
+    (folder / "extra.pkl").write_bytes(b"added later")
+    with pytest.raises(UnsafeCheckpointError, match="changed after it was written"):
+        verify_checkpoint(folder, keys)
