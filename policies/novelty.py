@@ -9,6 +9,8 @@ than ``slack``, stay silent. Settings: ``novelty:change=0.1,gap=1,rays=held,slac
 
 from __future__ import annotations
 
+import math
+
 from dataclasses import dataclass, fields
 from typing import Mapping
 
@@ -48,8 +50,9 @@ class NoveltySettings:
         settings = NoveltySettings(**values)
         if settings.rays not in RAY_RULES:
             raise ValueError(f"rays must be one of {RAY_RULES}, got {settings.rays!r}")
-        if settings.gap < 1 or settings.change < 0 or settings.slack < 0:
-            raise ValueError("gap must be >= 1, change and slack >= 0")
+        if settings.gap < 1 or not (math.isfinite(settings.change) and settings.change >= 0) \
+                or not (math.isfinite(settings.slack) and settings.slack >= 0):
+            raise ValueError(f"gap must be >= 1, change and slack finite and >= 0; got {settings}")
         return settings
 
     def __str__(self) -> str:

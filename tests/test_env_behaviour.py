@@ -96,6 +96,8 @@ def test_bad_actions_name_the_agent_and_the_problem(cache):
         e.step({**good, "agent_0": np.array([0, 2, 0, 0])})
     with pytest.raises(ActionError, match="agent_0"):
         e.step({**good, "agent_0": np.array([0.5, 0, 0, 0])})
+    with pytest.raises(ActionError, match="actions must be a dict \\{agent: action\\}.*got list"):
+        e.step([np.zeros(4)] * 3)
     while e.agents:  # bad actions changed nothing: the episode still runs to its end
         e.step(good)
     with pytest.raises(RuntimeError, match="episode has ended"):
@@ -119,6 +121,15 @@ def test_bad_construction_is_refused_clearly(cache):
         parallel_env(preset="rl_tiny", render_mode="ascii")
     with pytest.raises(ValueError, match="unknown scene"):
         parallel_env(preset="rl_tiny", scene="castle", cache_dir=cache).reset(seed=0)
+    # each refused when the env is made, not at its first reset (NaN rewards, a thread count of 0)
+    for bad, message in ((dict(comm_cost_per_mb=float("nan")), "env.comm_cost_per_mb must be a finite number"),
+                         (dict(budget_penalty=float("inf")), "env.budget_penalty must be a finite number"),
+                         (dict(comm_budget_mb=float("nan")), "channel.budget_mb must be >= 0"),
+                         (dict(threads=0), "run.threads must be >= 1"),
+                         (dict(changed_only=-1.0), "changed_only must be None or a finite number >= 0"),
+                         (dict(device="tpu"), "run.device: 'tpu' is not a device")):
+        with pytest.raises(ValueError, match=message):
+            parallel_env(preset="rl_tiny", **bad)
     with pytest.raises(KeyError, match="unknown agent 'agent_7'"):
         parallel_env(preset="rl_tiny").observation_space("agent_7")
     assert "rays_per_object" in FIELD_NAMES

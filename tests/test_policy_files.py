@@ -55,6 +55,9 @@ def test_fixed_rate_schedules():
 @pytest.mark.parametrize("bad, message", [("every:0", "K >= 1"), ("rate:1.5", "Q in \\[0, 1\\]"),
                                           ("at:1,-2", "rounds as whole numbers >= 0"), ("at:1;2", "separated by commas"),
                                           ("novelty:speed=2", "name=value pairs"), ("novelty:rays=maybe", "rays must"),
+                                          ("novelty:change=nan", "change and slack finite"),
+                                          ("novelty:slack=inf", "change and slack finite"),
+                                          ("novelty:gap=x", "novelty"), ("bernoulli:nan", "\\[0, 1\\]"),
                                           ("sometimes", "unknown policy"), ("runs/x/best.json", "does not exist"),
                                           ("runs/x/best.json:mode", "file .runs/x/best.json. does not exist")])
 def test_bad_policy_names_say_what_is_wrong(bad, message):

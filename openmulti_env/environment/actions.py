@@ -24,6 +24,9 @@ def actions_to_plan(actions: Mapping[str, object], agents: Sequence[str]) -> Rou
     Entry k < N - 1 of agent i's action: send parameters to ``peers_of(i)[k]``; entry N - 1 + k: share
     rays with it."""
     n = len(agents)
+    if not isinstance(actions, Mapping):
+        raise ActionError(f"actions must be a dict {{agent: action}} for the agents {list(agents)}, got "
+                          f"{type(actions).__name__}")
     missing = [a for a in agents if a not in actions]
     unknown = [a for a in actions if a not in agents]
     if missing or unknown:
