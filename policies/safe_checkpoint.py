@@ -106,11 +106,17 @@ def _digest(folder: Path, key_dir: Path | None) -> str:
     return mac.hexdigest()
 
 
+def user_cache_folder() -> Path:
+    """``$OPENMULTI_CACHE``, else ``$XDG_CACHE_HOME/openmulti``, else ``~/.cache/openmulti`` (the folder
+    ``mapping.perception.model_cache.cache_root`` names; ``policies`` imports nothing of ``mapping``)."""
+    if os.environ.get("OPENMULTI_CACHE"):
+        return Path(os.environ["OPENMULTI_CACHE"]).expanduser()
+    return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "openmulti"
+
+
 def _key(key_dir: Path | None) -> bytes:
     """This user's signing key (made on first use, readable by the user only)."""
-    from mapping.perception.model_cache import cache_root  # noqa: PLC0415
-
-    path = (key_dir or cache_root()) / "checkpoint-signing.key"
+    path = (key_dir or user_cache_folder()) / "checkpoint-signing.key"
     if not path.is_file():
         path.parent.mkdir(parents=True, exist_ok=True)
         tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")

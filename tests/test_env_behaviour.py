@@ -249,11 +249,14 @@ def test_world_cache_is_trimmed_to_its_cap(tmp_path):
 
     import os
 
-    for k in range(3):
-        (tmp_path / f"{k}.npz").write_bytes(b"x" * 400_000)
-        os.utime(tmp_path / f"{k}.npz", (1000 + k, 1000 + k))  # 0 is the oldest
-    trim_world_cache(tmp_path, max_mb=0.9, keep=tmp_path / "0.npz")
-    assert sorted(p.name for p in tmp_path.glob("*.npz")) == ["0.npz", "2.npz"]
+    names = [f"{k}" * 32 + ".npz" for k in range(3)]  # named as entries are
+    for k, name in enumerate(names):
+        (tmp_path / name).write_bytes(b"x" * 400_000)
+        os.utime(tmp_path / name, (1000 + k, 1000 + k))  # 0 is the oldest
+    (tmp_path / "results.npz").write_bytes(b"x" * 400_000)  # not an entry: never trimmed
+    os.utime(tmp_path / "results.npz", (10, 10))
+    trim_world_cache(tmp_path, max_mb=0.9, keep=tmp_path / names[0])
+    assert sorted(p.name for p in tmp_path.glob("*.npz")) == [names[0], names[2], "results.npz"]
 
 
 def test_agent_worker_threads_do_not_change_the_episode(cache):

@@ -43,8 +43,11 @@ def load_checkpoint(path: str | Path, map_location: str | torch.device = "cpu") 
         # weights_only: a checkpoint from someone else must not be able to run code on load
         data = torch.load(path, map_location=map_location, weights_only=True)
     except pickle.UnpicklingError as exc:
-        # weights_only refuses whatever is not tensors, numbers, strings, lists or dicts: a pickled object
+        # weights_only refuses whatever is not tensors, numbers, strings, lists or dicts: bytes that are no
+        # pickle program at all are corrupt; any object (a global, a class, a reduce call) is refused as unsafe
         detail = next((line.strip() for line in str(exc).splitlines() if "Unsupported" in line), str(exc)[:200])
+        if "Unsupported operand" in detail:
+            raise CheckpointError(f"{path}: corrupt or unreadable checkpoint ({detail})") from None
         raise CheckpointError(f"{path}: refused: the checkpoint holds a pickled object or an instruction other than "
                               f"tensors, numbers, strings, lists and dicts ({detail}); reading it could run code"
                               ) from None
