@@ -87,6 +87,12 @@ def empty_metrics(
     )
 
 
+def nearest_tree(points: np.ndarray) -> cKDTree:
+    """A KD-tree for exact nearest-neighbour distances. Without compact nodes: a partial map's far queries
+    (ground truth a metre from any mapped point) ran 6x faster here, with the same distances bit for bit."""
+    return cKDTree(points, compact_nodes=False)
+
+
 def _is_empty(mesh: trimesh.Trimesh | None) -> bool:
     return mesh is None or len(mesh.faces) == 0 or not mesh.area > 0.0
 
@@ -141,7 +147,7 @@ class SampledSurface:
     def of(cls, mesh: trimesh.Trimesh, count: int = 200_000, seed: int = 0) -> "SampledSurface":
         """``count`` points on ``mesh`` with ``evaluate_mesh``'s seed for the ground truth (``seed + 1``)."""
         points = sample_points(mesh, count, seed=seed + 1)
-        return cls(points, cKDTree(points), int(count), int(seed))
+        return cls(points, nearest_tree(points), int(count), int(seed))
 
 
 def accuracy_completion(
@@ -178,8 +184,8 @@ def accuracy_completion(
 
     if gt_tree is not None and gt_tree.n != len(gt):
         raise ValueError(f"gt_tree holds {gt_tree.n} points but gt_points has {len(gt)}: build it on gt_points")
-    dist_rec_to_gt, _ = (gt_tree if gt_tree is not None else cKDTree(gt)).query(rec, k=1, workers=-1)  # (n,)
-    dist_gt_to_rec, _ = cKDTree(rec).query(gt, k=1, workers=-1)  # (m,)
+    dist_rec_to_gt, _ = (gt_tree if gt_tree is not None else nearest_tree(gt)).query(rec, k=1, workers=-1)  # (n,)
+    dist_gt_to_rec, _ = nearest_tree(rec).query(gt, k=1, workers=-1)  # (m,)
     return GeometricMetrics(
         acc_cm=float(np.mean(dist_rec_to_gt)) * _M_TO_CM,
         comp_cm=float(np.mean(dist_gt_to_rec)) * _M_TO_CM,
@@ -284,7 +290,7 @@ def surface_classes(rec_mesh: trimesh.Trimesh | None, gt_mesh: trimesh.Trimesh, 
     if _is_empty(rec_mesh):
         return SurfaceClasses(np.zeros((0, 3)), np.zeros((0, 3)), gt_points)
     rec_points = sample_points(rec_mesh, count, seed=seed)
-    to_gt, _ = cKDTree(gt_points).query(rec_points, k=1, workers=-1)
-    to_rec, _ = cKDTree(rec_points).query(gt_points, k=1, workers=-1)
+    to_gt, _ = nearest_tree(gt_points).query(rec_points, k=1, workers=-1)
+    to_rec, _ = nearest_tree(rec_points).query(gt_points, k=1, workers=-1)
     return SurfaceClasses(rec_points[to_gt <= threshold_m], rec_points[to_gt > threshold_m],
                           gt_points[to_rec > threshold_m])
