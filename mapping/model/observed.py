@@ -1,0 +1,205 @@
+"""Observed space per instance: which cells of its box some keyframe's rays have looked at.
+
+An instance's network is trained only where rays passed; elsewhere inside its box it is free to
+invent surface, and meshing, rendering and the depth check then draw it (issue 44: 37-87 % of the
+pixels off by more than 5 cm were such surface). So each instance keeps a coarse grid of its box on a
+world-aligned lattice (``cell_m``, default 5 cm), each cell ``UNKNOWN``, ``FREE`` (a ray crossed it
+before reaching its depth) or ``SURFACE`` (a depth point of the instance fell in it). Cells on one
+world lattice make two agents' grids of one object merge cell by cell (the element-wise maximum:
+surface over free over unknown), whatever frames their networks use.
+
+On the wire a grid is its lattice origin and shape and 2 bits per cell, zlib-compressed
+(``to_bytes`` / ``from_bytes``): mostly unknown or free, it compresses to a small share of the network.
+"""
+
+from __future__ import annotations
+
+import struct
+import zlib
+from dataclasses import dataclass
+
+import numpy as np
+
+UNKNOWN, FREE, SURFACE = 0, 1, 2
+CELL_M = 0.05
+"""Default lattice spacing: the depth check's 5 cm tolerance."""
+MAX_CELLS = 1 << 24
+"""The largest grid a message may announce (a 12 m x 12 m x 3 m room at 5 cm is 3.5 M cells)."""
+_HEADER = struct.Struct("<d3q3q")  # cell_m, origin (3), shape (3)
+
+
+class ObservedSpaceError(ValueError):
+    """Bytes that are not an observed-space grid, or one outside the receiver's limits."""
+
+
+@dataclass
+class ObservedSpace:
+    """One instance's observed cells: ``states[i, j, k]`` is lattice cell ``origin + (i, j, k)``."""
+
+    cell_m: float
+    origin: np.ndarray  # (3,) int64 lattice index of states[0, 0, 0]
+    states: np.ndarray  # (X, Y, Z) uint8 of UNKNOWN / FREE / SURFACE
+
+    @classmethod
+    def empty(cls, cell_m: float = CELL_M) -> "ObservedSpace":
+        if not (np.isfinite(cell_m) and cell_m > 0):
+            raise ValueError(f"cell_m must be a positive number, got {cell_m}")
+        return cls(float(cell_m), np.zeros(3, np.int64), np.zeros((0, 0, 0), np.uint8))
+
+    # ---- the lattice ------------------------------------------------------------------------------------
+    def cells_of(self, points: np.ndarray) -> np.ndarray:
+        """(n, 3) int64 lattice cells of (n, 3) world points."""
+        return np.floor(np.asarray(points, np.float64) / self.cell_m).astype(np.int64)
+
+    @property
+    def lo(self) -> np.ndarray:
+        """(3,) world corner of the grid's first cell."""
+        return self.origin * self.cell_m
+
+    @property
+    def observed_share(self) -> float:
+        """Share of the grid's cells some ray looked at (0 for an empty grid)."""
+        return float(np.mean(self.states > UNKNOWN)) if self.states.size else 0.0
+
+    def cover(self, lo: np.ndarray, hi: np.ndarray) -> None:
+        """Grow the grid (keeping its states) to hold the world box [lo, hi]."""
+        first, last = self.cells_of(np.stack([lo, hi]))
+        if self.states.size:
+            first = np.minimum(first, self.origin)
+            last = np.maximum(last, self.origin + np.array(self.states.shape) - 1)
+        shape = tuple(int(s) for s in last - first + 1)
+        if self.states.size and np.array_equal(first, self.origin) and shape == self.states.shape:
+            return
+        if int(np.prod(shape)) > MAX_CELLS:
+            raise ValueError(f"an observed-space grid of {shape} cells exceeds {MAX_CELLS}: a box of "
+                             f"{(hi - lo).round(2).tolist()} m at {self.cell_m} m cells")
+        grown = np.zeros(shape, np.uint8)
+        if self.states.size:
+            at = self.origin - first
+            grown[at[0]:at[0] + self.states.shape[0], at[1]:at[1] + self.states.shape[1],
+                  at[2]:at[2] + self.states.shape[2]] = self.states
+        self.origin, self.states = first, grown
+
+    def _index(self, points: np.ndarray) -> tuple[np.ndarray, tuple[np.ndarray, ...]]:
+        """Which of ``points`` fall in the grid, and their (i, j, k) indices."""
+        idx = self.cells_of(points) - self.origin
+        inside = np.all((idx >= 0) & (idx < np.array(self.states.shape)), axis=1) if self.states.size else \
+            np.zeros(len(idx), bool)
+        return inside, tuple(idx[inside].T)
+
+    # ---- marking and reading ----------------------------------------------------------------------------
+    def mark(self, points: np.ndarray, state: int) -> None:
+        """Raise the cells of ``points`` (inside the grid) to at least ``state``."""
+        inside, ijk = self._index(points)
+        if inside.any():
+            np.maximum.at(self.states, ijk, np.uint8(state))
+
+    def mark_rays(self, origins: np.ndarray, ends: np.ndarray, stop_short_m: float) -> None:
+        """``FREE`` along each segment origin -> end (world, (n, 3) each), stopping ``stop_short_m`` before
+        its end (the depth's noise), sampled at half a cell; cells outside the grid are skipped."""
+        origins, ends = np.asarray(origins, np.float64), np.asarray(ends, np.float64)
+        if not len(origins) or not self.states.size:
+            return
+        direction = ends - origins
+        length = np.linalg.norm(direction, axis=1)
+        usable = length > stop_short_m
+        origins, direction, length = origins[usable], direction[usable] / length[usable, None], length[usable]
+        lo, hi = self.lo, self.lo + np.array(self.states.shape) * self.cell_m
+        # only the part of each segment inside the grid's box is sampled (slab test)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t0 = (lo - origins) / direction
+            t1 = (hi - origins) / direction
+        near = np.nanmax(np.where(np.isfinite(t0), np.minimum(t0, t1), -np.inf), axis=1).clip(min=0.0)
+        far = np.nanmin(np.where(np.isfinite(t1), np.maximum(t0, t1), np.inf), axis=1)
+        far = np.minimum(far, length - stop_short_m)
+        step = self.cell_m / 2
+        counts = np.ceil(np.maximum(far - near, 0.0) / step).astype(np.int64)
+        ray = np.repeat(np.arange(len(counts)), counts)
+        t = near[ray] + (np.arange(len(ray)) - np.repeat(np.cumsum(counts) - counts, counts)) * step
+        self.mark(origins[ray] + t[:, None] * direction[ray], FREE)
+
+    def state_at(self, points: np.ndarray) -> np.ndarray:
+        """(n,) uint8 state of each world point's cell (``UNKNOWN`` outside the grid)."""
+        out = np.zeros(len(points), np.uint8)
+        inside, ijk = self._index(points)
+        out[inside] = self.states[ijk]
+        return out
+
+    def near_surface(self, points: np.ndarray, cells: int = 1) -> np.ndarray:
+        """(n,) bool: the point's cell is within ``cells`` cells of a ``SURFACE`` cell (where a mesh may be)."""
+        from scipy.ndimage import binary_dilation  # noqa: PLC0415
+
+        if not self.states.size:
+            return np.zeros(len(points), bool)
+        grown = binary_dilation(self.states == SURFACE, iterations=cells) if cells else self.states == SURFACE
+        out = np.zeros(len(points), bool)
+        inside, ijk = self._index(points)
+        out[inside] = grown[ijk]
+        return out
+
+    def merge(self, other: "ObservedSpace") -> None:
+        """Add ``other``'s observations (same lattice): the cell-wise maximum."""
+        if other.cell_m != self.cell_m:
+            raise ValueError(f"observed spaces of {other.cell_m} m and {self.cell_m} m cells do not merge")
+        if not other.states.size:
+            return
+        self.cover(other.lo + 0.5 * other.cell_m,
+                   other.lo + (np.array(other.states.shape) - 0.5) * other.cell_m)
+        at = other.origin - self.origin
+        view = self.states[at[0]:at[0] + other.states.shape[0], at[1]:at[1] + other.states.shape[1],
+                           at[2]:at[2] + other.states.shape[2]]
+        np.maximum(view, other.states, out=view)
+
+    def copy(self) -> "ObservedSpace":
+        return ObservedSpace(self.cell_m, self.origin.copy(), self.states.copy())
+
+    # ---- the wire ---------------------------------------------------------------------------------------
+    def to_bytes(self) -> bytes:
+        """Lattice origin and shape, then 2 bits per cell, zlib-compressed."""
+        flat = self.states.reshape(-1)
+        padded = np.zeros(-(-len(flat) // 4) * 4, np.uint8)
+        padded[:len(flat)] = flat
+        quads = padded.reshape(-1, 4)
+        packed = (quads[:, 0] | quads[:, 1] << 2 | quads[:, 2] << 4 | quads[:, 3] << 6).astype(np.uint8)
+        return _HEADER.pack(self.cell_m, *self.origin.tolist(), *self.states.shape) + zlib.compress(packed.tobytes(), 6)
+
+    @classmethod
+    def from_bytes(cls, data: bytes, cell_m: float | None = None, max_cells: int = MAX_CELLS) -> "ObservedSpace":
+        """Inverse of ``to_bytes``; ObservedSpaceError for bytes that are not one (or of another ``cell_m``)."""
+        if len(data) < _HEADER.size:
+            raise ObservedSpaceError(f"observed space of {len(data)} bytes: shorter than its header")
+        cell, *rest = _HEADER.unpack_from(data)
+        origin, shape = np.array(rest[:3], np.int64), tuple(rest[3:])
+        if not (np.isfinite(cell) and cell > 0) or (cell_m is not None and cell != cell_m):
+            raise ObservedSpaceError(f"observed space: cell size {cell}, expected {cell_m}")
+        if any(s < 0 for s in shape) or np.prod(shape, dtype=object) > max_cells or np.any(np.abs(origin) > 1 << 40):
+            raise ObservedSpaceError(f"observed space: shape {shape} / origin {origin.tolist()} out of bounds")
+        n = int(np.prod(shape, dtype=object))
+        want = -(-n // 4)
+        try:
+            decompressor = zlib.decompressobj()
+            raw = decompressor.decompress(data[_HEADER.size:], want + 1)  # bounded: no zip bomb
+        except zlib.error as exc:
+            raise ObservedSpaceError(f"observed space: corrupt cells ({exc})") from None
+        if len(raw) != want or decompressor.unconsumed_tail or not decompressor.eof:
+            raise ObservedSpaceError(f"observed space: {len(raw)} bytes of cells{'' if decompressor.eof else ' (cut)'}"
+                                     f", expected {want}")
+        packed = np.frombuffer(raw, np.uint8)
+        cells = np.stack([packed & 3, packed >> 2 & 3, packed >> 4 & 3, packed >> 6 & 3], axis=1).reshape(-1)[:n]
+        if np.any(cells > SURFACE):
+            raise ObservedSpaceError("observed space: a cell state outside unknown / free / surface")
+        return cls(float(cell), origin, cells.reshape(shape).astype(np.uint8))
+
+
+def observe_frame(space: ObservedSpace, points: np.ndarray, camera: np.ndarray, lo: np.ndarray, hi: np.ndarray,
+                  free_ends: np.ndarray | None = None, stop_short_m: float = 0.05) -> None:
+    """Mark one keyframe in an instance's ``space``: grow it to the instance's box [lo, hi], ``FREE``
+    along the rays from ``camera`` ((3,) world) to ``free_ends`` (depth points of any pixel whose ray
+    crosses the box; default ``points``), stopping ``stop_short_m`` short, then ``SURFACE`` at the
+    instance's own depth ``points`` (so a surface cell is never cleared by a grazing ray)."""
+    space.cover(lo, hi)
+    ends = points if free_ends is None else free_ends
+    if len(ends):
+        space.mark_rays(np.broadcast_to(camera, ends.shape), ends, stop_short_m)
+    if len(points):
+        space.mark(points, SURFACE)
