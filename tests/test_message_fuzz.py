@@ -12,7 +12,7 @@ import warnings
 import numpy as np
 import pytest
 
-from mapping.model.agent import param_counts
+from mapping.model.banks import param_counts
 from mapping.model.agent_config import MappingConfig
 from mapping.team import (Channel, InstancePayload, MessageError, MessageRules, ParameterMessage, RayMessage,
                           from_bytes, to_bytes)

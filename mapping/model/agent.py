@@ -8,7 +8,7 @@ weights -> data loss (eq. 8-11) -> one AdamW step on the stacked parameters.
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Callable
 
@@ -21,7 +21,8 @@ from mapping.model.bounds import InstanceBound
 from mapping.model.checkpoint import load_checkpoint, save_checkpoint
 from mapping.data import Frame, Intrinsics
 from mapping.evaluate import extract_instance_mesh
-from mapping.model.field import OBJECT_FIELD, STRUCTURE_FIELD, FieldOutput, InstanceFieldBank, LiveRows
+from mapping.model.field import FieldOutput, LiveRows
+from mapping.model.banks import instance_banks
 from mapping.model.instance_frames import refit_frames
 from mapping.model.instances import ExportedInstance, InstanceFrame, InstanceSlot
 from mapping.model.optim import AdamConfig, StackedAdam
@@ -51,22 +52,6 @@ class TrainingBatch:
         """(N, R * S, 3) world points the field is evaluated on."""
         n, r, s = self.samples.depths.shape
         return self.samples.positions.reshape(n, r * s, 3)
-
-
-def instance_banks(config: MappingConfig, device: torch.device | str = "cpu") -> dict[str, InstanceFieldBank]:
-    """The agent's two banks of instance networks, empty: objects at vMAP's width, walls / floor /
-    ceiling at ``config.structure_width`` (or MACIM's SDF network with ``config.structure_sdf``)."""
-    structure = replace(STRUCTURE_FIELD, hidden_width=config.structure_width,
-                        encoding_scale=config.structure_encoding_scale)
-    sdf = config.structure_sdf
-    return {"object": InstanceFieldBank(OBJECT_FIELD, device),
-            "structure": InstanceFieldBank(structure, device) if sdf is None else SdfFieldBank(
-                replace(structure, hidden_width=sdf.width, occupancy_sharpness=sdf.occupancy_sharpness), sdf, device)}
-
-
-def param_counts(config: MappingConfig) -> dict[str, int]:
-    """Per bank, the length of one instance's parameter vector (what a message's ``params`` must have)."""
-    return {name: int(bank.params.shape[1]) for name, bank in instance_banks(config).items()}
 
 
 class MappingAgent:

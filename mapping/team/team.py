@@ -25,7 +25,7 @@ from typing import Sequence
 import numpy as np
 
 from mapping.model.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
-from mapping.model.agent import param_counts
+from mapping.model.banks import param_counts
 from mapping.model.fleet import ExtraLoss, fleet_train
 from mapping.team.channel import DELIVERED, DROPPED, OVER_BUDGET, Channel
 from mapping.team.config import TeamConfig
