@@ -24,7 +24,7 @@ def test_a_keyframe_marks_surface_at_its_depth_free_in_front_and_leaves_behind_u
     assert space.state_at(np.array([[2.2, 0.5, 0.5]]))[0] == UNKNOWN  # behind it: nobody looked
     assert space.state_at(np.array([[9.0, 9.0, 9.0]]))[0] == UNKNOWN  # outside the grid
     assert 0 < space.observed_share < 1
-    assert space.near_surface(np.array([[2.04, 0.5, 0.5], [1.6, 0.5, 0.5]]), cells=1).tolist() == [True, False]
+    assert space.near_surface(np.array([[2.04, 0.5, 0.5], [1.6, 0.5, 0.5]])).tolist() == [True, False]
 
 
 def test_two_agents_grids_merge_cell_by_cell_and_surface_is_never_cleared():

@@ -5,7 +5,8 @@ reconstructed mesh, which needs marching cubes of every instance (seconds per ag
 instance is the 0.5 level set of its occupancy inside its box, zero outside (``extract_instance_mesh``
 pads with zeros). So a ground-truth point p with normal n has the surface near it when some instance's
 occupancy crosses 0.5 on the segment p + t n, |t| <= 5 cm, with points outside that instance's box
-counted as empty. This reads a handful of field values per point instead of meshing; the env measures
+counted as empty, and so are points away from the surface the instance observed (``observed_field``,
+as its mesh keeps only faces there). This reads a handful of field values per point instead of meshing; the env measures
 how closely it tracks the mesh-based figure (``benchmarks/bench_env.py``).
 """
 
@@ -65,7 +66,8 @@ def surface_probe_coverage(mapper, points: np.ndarray, normals: np.ndarray,
             continue
         pts = probes[point]  # (Q, K, 3)
         inside = ((pts >= lo[inst, None]) & (pts <= hi[inst, None])).all(-1)  # (Q, K)
-        occ = bank.query(pts.reshape(-1, 3), rows_t[inst].repeat_interleave(len(offsets)), with_colour=False)
+        field = mapper.observed_field(name)  # zero where the instance never saw surface nearby
+        occ = field.query(pts.reshape(-1, 3), rows_t[inst].repeat_interleave(len(offsets)), with_colour=False)
         occ = torch.where(inside, occ.occupancy.reshape(inside.shape), torch.zeros_like(inside, dtype=torch.float32))
         crosses = (occ.max(dim=1).values > level) & (occ.min(dim=1).values < level)
         covered[point[crosses]] = True

@@ -28,6 +28,8 @@ from mapping.model.instances import ExportedInstance, InstanceFrame, InstanceSlo
 from mapping.model.optim import AdamConfig, StackedAdam
 from mapping.model.keyframes import InstanceRays, KeyframeBuffer
 from mapping.model.losses import data_loss, free_space_loss
+from mapping.model.observed_field import ObservedRows, observed_faces
+from mapping.model.observed_map import ObservedMaps
 from mapping.model.sdf_field import SdfBatch, SdfFieldBank, sdf_batch
 from mapping.runtime import flushed_denormals, resolve_device
 from mapping.model.render import (CompositeConfig, CompositeRender, RayBundle, RaySamples, ray_aabb, render_image,
@@ -87,6 +89,7 @@ class MappingAgent:
         self.slots: dict[int, InstanceSlot] = {}
         self.keyframes = KeyframeBuffer(self.device, self.config.keyframe_capacity, self.config.keyframe_policy,
                                         seed=seed)
+        self.observed = ObservedMaps(self.config.observed_cell_m, self.config.observed_ray_stride)
         self.frames_seen = 0
         self.steps = 0
 
@@ -106,6 +109,8 @@ class MappingAgent:
             pts = frame.backproject(mask=instance == iid)
             bound = InstanceBound.from_points(pts)
             self._update_instance(iid, bound)
+        self.observed.observe_keyframe(frame, instance, {iid: (self.slots[iid].bound.lo, self.slots[iid].bound.hi)
+                                                         for iid in seen if iid in self.slots})
         return True
 
     def _update_instance(self, iid: int, bound: InstanceBound) -> None:
@@ -176,7 +181,8 @@ class MappingAgent:
         slot = self.slots[iid]
         bank = self.banks[slot.bank]
         return ExportedInstance(iid, slot.bank, bank.get_instance_params(slot.row).cpu().numpy(),
-                                slot.bound.lo.copy(), slot.bound.hi.copy(), self.frame_of(iid))
+                                slot.bound.lo.copy(), slot.bound.hi.copy(), self.frame_of(iid),
+                                self.observed.export(iid, slot.bound.lo, slot.bound.hi))
 
     def adopt_instance(self, iid: int, instance: ExportedInstance) -> None:
         """Take a peer's instance whole under the new id ``iid`` (network, box, frame): it renders at
@@ -196,6 +202,7 @@ class MappingAgent:
         self.slots[iid] = InstanceSlot(instance.bank, row, InstanceBound(np.asarray(instance.bound_lo, np.float64),
                                                                           np.asarray(instance.bound_hi, np.float64)),
                                         frame_origin=f.origin, frame_version=f.version)
+        self.observed.add(iid, instance.observed)
 
     def merge_instances(self, source: int, target: int) -> None:
         """``source`` is a piece of ``target`` (over-segmentation): its pixels join ``target``'s, the
@@ -203,6 +210,7 @@ class MappingAgent:
         (seen in no keyframe so far) takes ``source``'s network over."""
         if source == target:
             return
+        self.observed.merge(source, target)
         if target not in self.slots:
             self.slots[target] = self.slots.pop(source)
             self.keyframes.merge_ids(source, target)
@@ -315,7 +323,8 @@ class MappingAgent:
 
     # ---- outputs ---------------------------------------------------------------------------------
     def instance_meshes(self) -> dict[int, trimesh.Trimesh]:
-        """Marching cubes of every instance inside its box (instances that learned nothing are left out)."""
+        """Marching cubes of every instance inside its box, faces only near surface it observed (instances
+        that learned or saw nothing are left out)."""
         meshes = {}
         for iid, slot in sorted(self.slots.items()):
             if not slot.alive:
@@ -325,6 +334,9 @@ class MappingAgent:
             mesh = extract_instance_mesh(bank.occupancy_fn(slot.row), slot.bound.lo, slot.bound.hi,
                                          voxel_size_m=voxel, max_resolution=self.config.max_mesh_resolution,
                                          color_fn=bank.colour_fn(slot.row), device=self.device)
+            space = self.observed.get(iid)
+            if mesh is not None and space is not None:
+                mesh = observed_faces(mesh, space)
             if mesh is not None:
                 meshes[iid] = mesh
         return meshes
@@ -338,11 +350,19 @@ class MappingAgent:
         for name, bank in self.banks.items():
             rows = {s.row: iid for iid, s in self.slots.items() if s.bank == name and s.alive}
             if rows:
-                fields.append(LiveRows(bank, sorted(rows)))
+                spaces = {k: self.observed.get(rows[r]) for k, r in enumerate(sorted(rows))}
+                fields.append(ObservedRows(LiveRows(bank, sorted(rows)),
+                                           {k: v for k, v in spaces.items() if v is not None}))
                 labels.append(torch.as_tensor([rows[r] for r in sorted(rows)], device=self.device))
         c2w = torch.as_tensor(pose, dtype=torch.float32, device=self.device)
         return render_image(fields, c2w, intrinsics, CompositeConfig(samples_per_box=samples_per_box), stride=stride,
                             labels=labels)
+
+    def observed_field(self, bank: str) -> ObservedRows:
+        """``banks[bank]`` read only near observed surface (``mapping.model.observed_field``): what the env's
+        observation and reward query."""
+        return ObservedRows(self.banks[bank], {s.row: self.observed.get(iid) for iid, s in self.slots.items()
+                                               if s.bank == bank and self.observed.get(iid) is not None})
 
     # ---- checkpoints -----------------------------------------------------------------------------
     def save(self, path: str | Path) -> Path:
@@ -362,7 +382,7 @@ class MappingAgent:
             "optimisers": {n: o.state_dict() for n, o in self.optimisers.items()},
             "slots": {int(iid): [s.bank, s.row, s.bound.lo.tolist(), s.bound.hi.tolist(), s.frame_origin,
                                  s.frame_version, s.alive] for iid, s in self.slots.items()},
-            "frames_seen": self.frames_seen, "steps": self.steps,
+            "frames_seen": self.frames_seen, "steps": self.steps, "observed": self.observed.state(),
             "rng": self.rng.bit_generator.state, "generator": self.generator.get_state().cpu(),
             "init_generator": self.init_generator.get_state(),
         }
@@ -380,6 +400,7 @@ class MappingAgent:
                                             int(origin), int(version), bool(alive))
                       for i, (b, r, lo, hi, origin, version, alive) in data["slots"].items()}
         self.frames_seen, self.steps = data["frames_seen"], data["steps"]
+        self.observed.restore(data.get("observed", {}))
         self.rng.bit_generator.state = data["rng"]
         self.generator.set_state(data["generator"])
         self.init_generator.set_state(data["init_generator"])

@@ -72,8 +72,20 @@ class MappingConfig:
     """Extra local iterations in the round of an agent's first keyframe (MACIM: 200 on its first frame)."""
     iterations_after_stream: int = field(default=0, metadata=NEUTRAL_DEFAULT)
     """Local iterations after an agent's last frame, on top of ``TeamConfig.min_local_steps`` (MACIM: 200)."""
+    observed_cell_m: float | None = 0.05
+    """Cell of each instance's observed space (``mapping.model.observed``), sent with its parameters: meshes,
+    rendered views, the env's observations and its reward hold surface only near cells where some keyframe's
+    depth fell. None: none kept, the networks drawn wherever they say (the tables recorded before issue 44;
+    a global map keeps none: ``TeamConfig.global_map``)."""
+    observed_ray_stride: int = 16
+    """Every n-th valid pixel of a keyframe marks its ray free in each instance box it crosses (with every
+    4th pixel of the instance's own)."""
 
     def __post_init__(self) -> None:
+        if self.observed_cell_m is not None and not (0 < self.observed_cell_m <= 1):
+            raise ValueError(f"observed_cell_m must be in (0, 1] metres or None, got {self.observed_cell_m}")
+        if self.observed_ray_stride < 1:
+            raise ValueError(f"observed_ray_stride must be >= 1, got {self.observed_ray_stride}")
         if self.free_space_rays not in FREE_SPACE_RAYS:
             raise ValueError(f"unknown free_space_rays {self.free_space_rays!r}; choose one of {FREE_SPACE_RAYS}")
 

@@ -12,6 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from mapping.model.bounds import InstanceBound
+from mapping.model.observed import ObservedSpace
 
 
 @dataclass
@@ -62,3 +63,5 @@ class ExportedInstance:
     bound_lo: np.ndarray  # (3,)
     bound_hi: np.ndarray  # (3,)
     frame: InstanceFrame
+    observed: ObservedSpace | None = None
+    """Where the instance's keyframes have looked (None: not kept)."""

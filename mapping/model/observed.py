@@ -16,13 +16,17 @@ from __future__ import annotations
 
 import struct
 import zlib
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
 UNKNOWN, FREE, SURFACE = 0, 1, 2
 CELL_M = 0.05
 """Default lattice spacing: the depth check's 5 cm tolerance."""
+SURFACE_REACH_CELLS = 1
+"""A mesh, a rendered view or an observation may hold surface only within this many cells (26-connected) of
+a ``SURFACE`` cell: a network's 0.5 level lies within a few cm of the depth points it was trained on, and a
+surface cut by its cell's face continues into the neighbour."""
 MAX_CELLS = 1 << 24
 """The largest grid a message may announce (a 12 m x 12 m x 3 m room at 5 cm is 3.5 M cells)."""
 _HEADER = struct.Struct("<d3q3q")  # cell_m, origin (3), shape (3)
@@ -39,6 +43,8 @@ class ObservedSpace:
     cell_m: float
     origin: np.ndarray  # (3,) int64 lattice index of states[0, 0, 0]
     states: np.ndarray  # (X, Y, Z) uint8 of UNKNOWN / FREE / SURFACE
+    _reach: np.ndarray | None = field(default=None, repr=False, compare=False)
+    """Cached ``SURFACE`` dilated by ``SURFACE_REACH_CELLS`` (None: stale)."""
 
     @classmethod
     def empty(cls, cell_m: float = CELL_M) -> "ObservedSpace":
@@ -78,7 +84,7 @@ class ObservedSpace:
             at = self.origin - first
             grown[at[0]:at[0] + self.states.shape[0], at[1]:at[1] + self.states.shape[1],
                   at[2]:at[2] + self.states.shape[2]] = self.states
-        self.origin, self.states = first, grown
+        self.origin, self.states, self._reach = first, grown, None
 
     def _index(self, points: np.ndarray) -> tuple[np.ndarray, tuple[np.ndarray, ...]]:
         """Which of ``points`` fall in the grid, and their (i, j, k) indices."""
@@ -93,6 +99,7 @@ class ObservedSpace:
         inside, ijk = self._index(points)
         if inside.any():
             np.maximum.at(self.states, ijk, np.uint8(state))
+            self._reach = None
 
     def mark_rays(self, origins: np.ndarray, ends: np.ndarray, stop_short_m: float) -> None:
         """``FREE`` along each segment origin -> end (world, (n, 3) each), stopping ``stop_short_m`` before
@@ -125,16 +132,24 @@ class ObservedSpace:
         out[inside] = self.states[ijk]
         return out
 
-    def near_surface(self, points: np.ndarray, cells: int = 1) -> np.ndarray:
-        """(n,) bool: the point's cell is within ``cells`` cells of a ``SURFACE`` cell (where a mesh may be)."""
+    def surface_reach(self) -> np.ndarray:
+        """(X, Y, Z) bool: cells within ``SURFACE_REACH_CELLS`` of a ``SURFACE`` cell (cached until a change)."""
         from scipy.ndimage import binary_dilation  # noqa: PLC0415
 
-        if not self.states.size:
-            return np.zeros(len(points), bool)
-        grown = binary_dilation(self.states == SURFACE, iterations=cells) if cells else self.states == SURFACE
+        if self._reach is None:
+            surface = self.states == SURFACE
+            self._reach = (binary_dilation(surface, np.ones((3, 3, 3), bool), iterations=SURFACE_REACH_CELLS)
+                           if SURFACE_REACH_CELLS and surface.any() else surface)
+        return self._reach
+
+    def near_surface(self, points: np.ndarray) -> np.ndarray:
+        """(n,) bool: the point's cell is within ``SURFACE_REACH_CELLS`` of a ``SURFACE`` cell: where a mesh,
+        a rendered view or an observation may hold surface (``False`` outside the grid)."""
         out = np.zeros(len(points), bool)
+        if not self.states.size:
+            return out
         inside, ijk = self._index(points)
-        out[inside] = grown[ijk]
+        out[inside] = self.surface_reach()[ijk]
         return out
 
     def merge(self, other: "ObservedSpace") -> None:
@@ -149,6 +164,7 @@ class ObservedSpace:
         view = self.states[at[0]:at[0] + other.states.shape[0], at[1]:at[1] + other.states.shape[1],
                            at[2]:at[2] + other.states.shape[2]]
         np.maximum(view, other.states, out=view)
+        self._reach = None
 
     def copy(self) -> "ObservedSpace":
         return ObservedSpace(self.cell_m, self.origin.copy(), self.states.copy())

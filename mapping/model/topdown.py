@@ -3,8 +3,9 @@
 A robot deciding whom to talk to can only know what its own map holds. This reads that map the way a
 planner would, without any ground truth: every instance's occupancy is evaluated at the voxel centres of
 a fixed (rows, cols, levels) grid that fall inside the instance's box (outside every box the map is
-empty, as for meshing), and each column is summarised by the top of what the map holds there and by how
-much of the column the map decides. The grid is regular, so an instance's voxels are index ranges: no
+empty, as for meshing, and so is space away from the surface the instance observed), and each column is
+summarised by the top of what the map holds there and by how much of the column the map decides (a voxel
+no ray of the instance's looked at is undecided). The grid is regular, so an instance's voxels are index ranges: no
 point-in-box search over the whole grid.
 """
 
@@ -74,12 +75,14 @@ def column_map(mapper, grid: ColumnGrid, level: float = 0.5) -> ColumnMap:
             flat.append(np.ravel_multi_index((r, c, k), shape))
         if not points:
             continue
-        out = bank.query(torch.as_tensor(np.concatenate(points), dtype=torch.float32, device=mapper.device),
-                         torch.as_tensor(np.concatenate(rows), dtype=torch.long, device=mapper.device),
-                         with_colour=False).occupancy
+        field = mapper.observed_field(name)  # surface only near what the instance observed
+        queried = torch.as_tensor(np.concatenate(points), dtype=torch.float32, device=mapper.device)
+        row_index = torch.as_tensor(np.concatenate(rows), dtype=torch.long, device=mapper.device)
+        out = field.query(queried, row_index, with_colour=False).occupancy
         index = torch.as_tensor(np.concatenate(flat), dtype=torch.long, device=mapper.device)
         occupancy.scatter_reduce_(0, index, out, reduce="amax")
-        decided.index_fill_(0, index[(out - 0.5).abs() >= DECIDED_MARGIN], True)
+        sure = ((out - 0.5).abs() >= DECIDED_MARGIN) & field.looked(queried, row_index)  # nobody looked: undecided
+        decided.index_fill_(0, index[sure], True)
     occupied = (occupancy > level).reshape(shape).cpu().numpy()
     any_occupied = occupied.any(axis=2)
     top_level = len(zs) - 1 - np.argmax(occupied[:, :, ::-1], axis=2)

@@ -113,6 +113,7 @@ class Inbox:
             return None
         self.mapper.grow_bound(own_id, InstanceBound(payload.bound_lo.astype(np.float64),
                                                      payload.bound_hi.astype(np.float64)))
+        self.mapper.observed.add(own_id, payload.observed)  # where the peer looked counts as looked at
         theirs = payload_frame(payload)
         mine = self.mapper.frame_of(own_id)
         if theirs.same_as(mine) or not theirs.better_than(mine):
@@ -141,4 +142,5 @@ def payload_frame(payload: InstancePayload) -> InstanceFrame:
 
 def exported_instance(payload: InstancePayload) -> ExportedInstance:
     return ExportedInstance(payload.instance_id, payload.bank, payload.params.astype(np.float32),
-                            payload.bound_lo.astype(np.float64), payload.bound_hi.astype(np.float64), payload_frame(payload))
+                            payload.bound_lo.astype(np.float64), payload.bound_hi.astype(np.float64), payload_frame(payload),
+                            payload.observed)

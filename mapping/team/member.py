@@ -146,6 +146,8 @@ class TeamMember(StreamReader, Outbox, Inbox, Agreement):
         mapping = config.mapping
         if (every := config.keyframe_every(len(stream))) != mapping.keyframe_every:
             mapping = replace(mapping, keyframe_every=every)  # a short stream: keyframes more often
+        if config.global_map and mapping.observed_cell_m is not None:
+            mapping = replace(mapping, observed_cell_m=None)  # one scene network: the baselines mesh as published
         self.mapper = MappingAgent(mapping, is_structure=StructureTest(self._labels, vocabulary.structure,
                                                                        config.global_map),
                                    device=device, seed=seed, agent_index=index, init_seed=init_seed)

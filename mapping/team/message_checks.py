@@ -14,11 +14,12 @@ from typing import Mapping
 import numpy as np
 
 from mapping.data.poses import rigid_pose_problem
+from mapping.model.observed import MAX_CELLS, ObservedSpace, ObservedSpaceError
 from mapping.team.wire import MessageError, is_count
 
 BANKS = ("object", "structure")
 """The instance network banks a payload may name (``mapping.model.agent``)."""
-META_FIELDS = frozenset({"id", "bank", "half", "origin", "version", "caption", "confidence", "cloud"})
+META_FIELDS = frozenset({"id", "bank", "half", "origin", "version", "caption", "confidence", "cloud", "observed"})
 
 
 @dataclass(frozen=True)
@@ -32,6 +33,8 @@ class MessageRules:
         max_rays: poses x rays per pose that one ray message may ask the receiver to render.
         max_image_side: the largest width or height the intrinsics may name.
         max_caption_chars: the longest caption.
+        observed_cell_m: the cell an instance's observed space must use (None: any).
+        max_observed_cells: the most cells one observed space may announce.
     """
 
     num_agents: int | None = None
@@ -40,6 +43,8 @@ class MessageRules:
     max_rays: int = 1 << 20
     max_image_side: int = 1 << 14
     max_caption_chars: int = 1000
+    observed_cell_m: float | None = None
+    max_observed_cells: int = MAX_CELLS
 
 
 @dataclass(frozen=True)
@@ -54,6 +59,7 @@ class InstanceMeta:
     caption: str
     confidence: float
     cloud: bool
+    observed: bool
 
 
 def count_field(scalars: dict, name: str, upper: int | None = None) -> int:
@@ -136,14 +142,36 @@ def instance_meta(k: int, meta, rules: MessageRules) -> InstanceMeta:
     if not isinstance(caption, str) or len(caption) > rules.max_caption_chars:
         raise MessageError(f"field instances[{k}].caption: expected text of at most {rules.max_caption_chars} "
                            f"characters, got {type(caption).__name__}")
-    if not isinstance(meta["cloud"], bool):
-        raise MessageError(f"field instances[{k}].cloud: expected true or false")
+    for flag in ("cloud", "observed"):
+        if not isinstance(meta[flag], bool):
+            raise MessageError(f"field instances[{k}].{flag}: expected true or false")
     where = f"instances[{k}]."
     origin_limit = None if rules.num_agents is None else rules.num_agents - 1
     return InstanceMeta(_count(meta, "id", where), meta["bank"],
                         finite_number(meta["half"], where + "half", 1e-6, 1e4),
                         _count(meta, "origin", where, origin_limit), _count(meta, "version", where),
-                        caption, finite_number(meta["confidence"], where + "confidence", 0.0, 1.0), meta["cloud"])
+                        caption, finite_number(meta["confidence"], where + "confidence", 0.0, 1.0), meta["cloud"],
+                        meta["observed"])
+
+
+def checked_observed(arrays: dict[str, np.ndarray], k: int, lo: np.ndarray, hi: np.ndarray,
+                     rules: MessageRules) -> ObservedSpace:
+    """Instance ``k``'s observed space (array ``k.observed``: its wire bytes) if it decodes, uses the
+    receiver's cell and spans the instance's box [lo, hi] (one cell of slack for float32 corners)."""
+    name = f"{k}.observed"
+    data = checked_array(arrays, name, (None,), floating=False)
+    if data.dtype != np.uint8:
+        raise MessageError(f"array {name}: expected bytes (uint8), got {data.dtype}")
+    try:
+        space = ObservedSpace.from_bytes(data.tobytes(), rules.observed_cell_m, rules.max_observed_cells)
+    except ObservedSpaceError as exc:
+        raise MessageError(f"array {name}: {exc}") from None
+    first, last = space.cells_of(np.stack([lo, hi]).astype(np.float64))
+    end = space.origin + np.array(space.states.shape) - 1
+    if not space.states.size or np.any(np.abs(space.origin - first) > 1) or np.any(np.abs(end - last) > 1):
+        raise MessageError(f"array {name}: a grid of cells {space.origin.tolist()}..{end.tolist()} does not match "
+                           f"the instance's box (cells {first.tolist()}..{last.tolist()})")
+    return space
 
 
 def _count(meta: dict, name: str, where: str, upper: int | None = None) -> int:

@@ -27,8 +27,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from mapping.model.observed import ObservedSpace
 from mapping.team.message_checks import (MessageRules, agent_field, checked_array, checked_ids, checked_intrinsics,
-                                         count_field, instance_meta, rigid_poses)
+                                         checked_observed, count_field, instance_meta, rigid_poses)
 from mapping.team.wire import MessageError, pack, unpack
 
 __all__ = ["DegreeMessage", "InstancePayload", "Message", "MessageError", "MessageRules", "ParameterMessage",
@@ -46,6 +47,7 @@ class InstancePayload:
         frame_centre: (3,) float32; ``frame_half``, ``frame_origin``, ``frame_version``: its frame.
         caption, caption_feature ((d,) float16/32), confidence: its code-book entry.
         cloud: (P, 3) float32 down-sampled points, or None (already sent).
+        observed: where its keyframes have looked (2 bits a cell on the wire), or None (the sender keeps none).
     """
 
     instance_id: int
@@ -61,6 +63,7 @@ class InstancePayload:
     caption_feature: np.ndarray
     confidence: float
     cloud: np.ndarray | None = None
+    observed: ObservedSpace | None = None
 
 
 @dataclass
@@ -148,12 +151,14 @@ def to_bytes(message: Message) -> bytes:
         scalars["instances"].append({"id": inst.instance_id, "bank": inst.bank, "half": float(inst.frame_half),
                                      "origin": inst.frame_origin, "version": inst.frame_version,
                                      "caption": inst.caption, "confidence": float(inst.confidence),
-                                     "cloud": inst.cloud is not None})
+                                     "cloud": inst.cloud is not None, "observed": inst.observed is not None})
         arrays[f"{k}.params"] = inst.params
         arrays[f"{k}.box"] = np.concatenate([inst.bound_lo, inst.bound_hi, inst.frame_centre]).astype(np.float32)
         arrays[f"{k}.feature"] = inst.caption_feature
         if inst.cloud is not None:
             arrays[f"{k}.cloud"] = np.asarray(inst.cloud, np.float32)
+        if inst.observed is not None:
+            arrays[f"{k}.observed"] = np.frombuffer(inst.observed.to_bytes(), np.uint8)
     return pack("params", scalars, arrays)
 
 
@@ -208,5 +213,6 @@ def _instance(k: int, meta, arrays: dict[str, np.ndarray], rules: MessageRules) 
         raise MessageError(f"array {k}.box: its low corner lies above its high corner")
     feature = checked_array(arrays, f"{k}.feature", (rules.feature_dim,))
     cloud = checked_array(arrays, f"{k}.cloud", (None, 3)) if m.cloud else None
+    observed = checked_observed(arrays, k, box[:3], box[3:6], rules) if m.observed else None
     return InstancePayload(m.id, m.bank, params, box[:3], box[3:6], box[6:9], m.half, m.origin, m.version,
-                           m.caption, feature, m.confidence, cloud)
+                           m.caption, feature, m.confidence, cloud, observed)

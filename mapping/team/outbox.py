@@ -42,7 +42,7 @@ class Outbox:
                 iid, inst.bank, inst.params.astype(dtype), inst.bound_lo.astype(np.float32),
                 inst.bound_hi.astype(np.float32), np.asarray(inst.frame.centre, np.float32), inst.frame.half,
                 inst.frame.origin, inst.frame.version, entry.caption, entry.caption_feature.astype(dtype),
-                entry.confidence, cloud))
+                entry.confidence, cloud, inst.observed))
             sent[iid] = inst.params
         self._unacknowledged[receiver] = (sent, clouds)
         return ParameterMessage(self.index, receiver, round_index, payloads, degree)

@@ -151,7 +151,8 @@ class Team:
             self.members = [TeamMember(i, s, config, vocabulary, seed=seed * 100 + i, device=device, init_seed=init_seed)
                             for i, s in enumerate(streams)]
         self.channel_config = channel
-        rules = MessageRules(param_counts=param_counts(config.mapping), feature_dim=vocabulary.features.shape[1])
+        rules = MessageRules(param_counts=param_counts(config.mapping), feature_dim=vocabulary.features.shape[1],
+                             observed_cell_m=config.mapping.observed_cell_m)
         self.channel = Channel(len(streams), channel.success_probability, channel.budget_bytes,
                                seed=zlib.crc32(f"channel-{seed}".encode()), rules=rules)
         self.round_index = 0

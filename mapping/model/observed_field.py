@@ -1,0 +1,116 @@
+"""A map's fields read only where someone looked: occupancy forced to zero outside each instance's observed
+reach (``ObservedSpace.surface_reach``), and mesh faces kept only inside it.
+
+Every reader of a map goes through these: meshing (``observed_faces``), rendered views, the env's top-down
+observation and the reward's probe (``ObservedRows``), so a network's invention inside its box, where no
+ray passed, is drawn nowhere (issue 44). An instance without an observed space (the setting off, a global
+map, an older checkpoint) is read as before.
+"""
+
+from __future__ import annotations
+
+from typing import Callable, Mapping, Protocol
+
+import numpy as np
+import torch
+import trimesh
+from torch import Tensor
+
+from mapping.model.field import FieldOutput
+from mapping.model.observed import UNKNOWN, ObservedSpace
+
+
+class QueryableField(Protocol):
+    """What ``ObservedRows`` wraps: an ``InstanceFieldBank`` or a ``LiveRows`` view of one."""
+
+    @property
+    def num_instances(self) -> int: ...
+    @property
+    def bound_min(self) -> Tensor: ...
+    @property
+    def bound_max(self) -> Tensor: ...
+    def query(self, points: Tensor, rows: Tensor, with_colour: bool = True, block_size: int = 4096) -> FieldOutput: ...
+
+
+def _cells(grid: np.ndarray, space: ObservedSpace, points: Tensor) -> Tensor:
+    """(n,) bool on ``points``' device: ``grid`` (the space's shape) at each point's cell, False outside."""
+    out = torch.zeros(len(points), dtype=torch.bool, device=points.device)
+    if not grid.size:
+        return out
+    idx = torch.floor(points.double() / space.cell_m).long() - torch.as_tensor(space.origin, device=points.device)
+    inside = ((idx >= 0) & (idx < torch.as_tensor(grid.shape, device=points.device))).all(dim=1)
+    ijk = idx[inside]
+    out[inside] = torch.as_tensor(grid, device=points.device)[ijk[:, 0], ijk[:, 1], ijk[:, 2]]
+    return out
+
+
+def reach_mask(space: ObservedSpace, points: Tensor) -> Tensor:
+    """(n,) bool: the points' cells lie within the space's surface reach (where surface may be drawn)."""
+    return _cells(space.surface_reach(), space, points)
+
+
+def looked_mask(space: ObservedSpace, points: Tensor) -> Tensor:
+    """(n,) bool: some ray looked at the points' cells (free or surface)."""
+    return _cells(space.states > UNKNOWN, space, points)
+
+
+class ObservedRows:
+    """``field`` with each row's occupancy zero outside its observed space's reach (rows without one: as is).
+
+    Args:
+        field: the bank or view queried.
+        spaces: row number (in ``field``'s numbering) -> that instance's observed space.
+    """
+
+    def __init__(self, field: QueryableField, spaces: Mapping[int, ObservedSpace]):
+        self.field, self.spaces = field, dict(spaces)
+
+    @property
+    def num_instances(self) -> int:
+        return self.field.num_instances
+
+    @property
+    def bound_min(self) -> Tensor:
+        return self.field.bound_min
+
+    @property
+    def bound_max(self) -> Tensor:
+        return self.field.bound_max
+
+    def query(self, points: Tensor, rows: Tensor, with_colour: bool = True, block_size: int = 4096) -> FieldOutput:
+        """The field's output with occupancy zeroed where the row's instance never saw surface nearby."""
+        out = self.field.query(points, rows, with_colour=with_colour, block_size=block_size)
+        allowed = self.mask(points, rows, reach_mask)
+        return FieldOutput(torch.where(allowed, out.occupancy, torch.zeros_like(out.occupancy)), out.colour)
+
+    def looked(self, points: Tensor, rows: Tensor) -> Tensor:
+        """(n,) bool: the row's instance looked at the point's cell (True for rows without a space)."""
+        return self.mask(points, rows, looked_mask)
+
+    def mask(self, points: Tensor, rows: Tensor, test: Callable[[ObservedSpace, Tensor], Tensor]) -> Tensor:
+        """(n,) bool of ``test(space, points)`` per row (True for rows without a space)."""
+        allowed = torch.ones(len(points), dtype=torch.bool, device=points.device)
+        if not self.spaces or not len(points):
+            return allowed
+        for row in torch.unique(rows).tolist():
+            space = self.spaces.get(int(row))
+            if space is not None:
+                of_row = rows == row
+                allowed[of_row] = test(space, points[of_row])
+        return allowed
+
+
+def observed_faces(mesh: trimesh.Trimesh, space: ObservedSpace) -> trimesh.Trimesh | None:
+    """``mesh`` with only the faces whose centre lies within ``space``'s surface reach (None: none left).
+
+    Faces are cut rather than the occupancy zeroed before marching cubes: a zeroed unknown interior would
+    close every object with a second, invented face a few cm behind the surface it saw."""
+    keep = space.near_surface(np.asarray(mesh.triangles_center))
+    if keep.all():
+        return mesh
+    if not keep.any():
+        return None
+    out = mesh.copy()
+    out.update_faces(keep)
+    out.remove_unreferenced_vertices()
+    return out

@@ -1,0 +1,82 @@
+"""An agent's observed spaces, one per instance: marked from its keyframes, merged when instances merge or
+a peer's copy of one arrives, taken whole with an adopted instance, written in its checkpoint.
+
+Apart from ``MappingAgent`` so that the agent reads as ingest -> train -> outputs; the agent calls these
+at the same places it updates an instance's box.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from mapping.data import Frame
+from mapping.model.observed import ObservedSpace, observe_frame
+
+OWN_PIXEL_STRIDE = 4
+"""Every n-th of an instance's own pixels also marks its ray free (its box's front, seen at any stride)."""
+
+
+class ObservedMaps:
+    """Instance id -> ``ObservedSpace`` of one agent (empty and inert when ``cell_m`` is None).
+
+    Args:
+        cell_m: lattice spacing (``MappingConfig.observed_cell_m``), None to keep none.
+        ray_stride: every n-th valid pixel of a keyframe casts a free-space ray.
+    """
+
+    def __init__(self, cell_m: float | None, ray_stride: int = 16):
+        self.cell_m, self.ray_stride = cell_m, ray_stride
+        self.spaces: dict[int, ObservedSpace] = {}
+
+    @property
+    def enabled(self) -> bool:
+        return self.cell_m is not None
+
+    def observe_keyframe(self, frame: Frame, instance: np.ndarray, boxes: dict[int, tuple[np.ndarray, np.ndarray]]
+                         ) -> None:
+        """Mark one keyframe in the spaces of the instances it shows (``boxes``: id -> their boxes now):
+        free along its rays up to their depth, surface at each instance's own depth points."""
+        if not self.enabled or not boxes:
+            return
+        camera = np.asarray(frame.pose, np.float64)[:3, 3]
+        valid = np.isfinite(frame.depth) & (frame.depth > 0)
+        rays = frame.backproject(mask=valid)[::self.ray_stride]
+        for iid, (lo, hi) in boxes.items():
+            points = frame.backproject(mask=valid & (instance == iid))
+            space = self.spaces.setdefault(iid, ObservedSpace.empty(self.cell_m))
+            observe_frame(space, points, camera, lo, hi, free_ends=np.concatenate([rays, points[::OWN_PIXEL_STRIDE]]))
+
+    def merge(self, source: int, target: int) -> None:
+        """``source`` became part of ``target``: its observations join ``target``'s."""
+        space = self.spaces.pop(source, None)
+        if space is not None:
+            self.add(target, space)
+
+    def add(self, iid: int, space: ObservedSpace | None) -> None:
+        """Add ``space`` (a peer's observations of this instance) to the instance's own; ignored when this
+        agent keeps none or the peer sent none."""
+        if not self.enabled or space is None:
+            return
+        if iid not in self.spaces:
+            self.spaces[iid] = ObservedSpace.empty(self.cell_m)
+        self.spaces[iid].merge(space)
+
+    def export(self, iid: int, lo: np.ndarray, hi: np.ndarray) -> ObservedSpace | None:
+        """A copy of the instance's space grown to its box [lo, hi] (what a peer receives), or None."""
+        if not self.enabled:
+            return None
+        space = self.spaces.get(iid, ObservedSpace.empty(self.cell_m)).copy()
+        space.cover(lo, hi)
+        return space
+
+    def get(self, iid: int) -> ObservedSpace | None:
+        return self.spaces.get(iid)
+
+    def state(self) -> dict[int, torch.Tensor]:
+        """Each space's wire form as a uint8 tensor (a checkpoint holds tensors, not bytes)."""
+        return {iid: torch.frombuffer(bytearray(s.to_bytes()), dtype=torch.uint8) for iid, s in self.spaces.items()}
+
+    def restore(self, state: dict[int, torch.Tensor]) -> None:
+        self.spaces = {int(iid): ObservedSpace.from_bytes(bytes(t.numpy().tobytes()), self.cell_m)
+                       for iid, t in state.items()} if self.enabled else {}

@@ -1,0 +1,171 @@
+"""Issue 44 end to end: an agent's observed spaces decide where its meshes, views, observation and reward may
+hold surface; they travel with the parameters, merge on arrival, survive checkpoints; bad ones are refused."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+import torch
+
+from mapping.model.agent import MappingAgent
+from mapping.model.agent_config import MappingConfig
+from mapping.model.banks import param_counts
+from mapping.model.observed import FREE, SURFACE, UNKNOWN, ObservedSpace
+from mapping.model.topdown import ColumnGrid, column_map
+from mapping.evaluate.probe import surface_probe_coverage
+from mapping.team import Channel, InstancePayload, MessageError, MessageRules, ParameterMessage, from_bytes, to_bytes
+
+
+def _book_agent(world, config: MappingConfig, seed: int = 0, steps: int = 150) -> tuple[MappingAgent, int]:
+    """An agent that maps only the first book of the tiny scene (other pixels masked out), trained."""
+    book = next(i for i in world.scene.instances if i.category == "book")
+    torch.manual_seed(seed)
+    agent = MappingAgent(config, device="cpu", seed=seed)
+    for i in range(len(world.agent_poses[0])):
+        frame = world.render(0, i)
+        agent.ingest(frame, np.where(frame.instance == book.instance_id, book.instance_id, 0))
+    agent.train(steps)
+    return agent, book.instance_id
+
+
+@pytest.fixture(scope="module")
+def book_agent(tiny_world):
+    return _book_agent(tiny_world, MappingConfig(keyframe_every=2))
+
+
+def test_keyframes_mark_the_book_surface_where_its_depth_fell_and_free_in_front(tiny_world, book_agent):
+    agent, iid = book_agent
+    space = agent.observed.get(iid)
+    assert space is not None and space.cell_m == 0.05
+    frame = tiny_world.render(0, 0)
+    points = frame.backproject(mask=frame.instance == iid)
+    assert np.mean(space.state_at(points) == SURFACE) > 0.99  # every depth point of the book lies in a surface cell
+    camera = frame.pose[:3, 3]
+    towards = (camera - points[::20]) / np.linalg.norm(camera - points[::20], axis=1)[:, None]
+    in_front = np.concatenate([points[::20] + d * towards for d in (0.12, 0.2, 0.3)])
+    inside = np.all((in_front >= space.lo) & (in_front < space.lo + np.array(space.states.shape) * 0.05), axis=1)
+    assert inside.any() and (space.states == FREE).any()
+    assert np.mean(space.state_at(in_front[inside]) > UNKNOWN) > 0.9  # rays to the camera crossed these cells
+    assert 0.0 < space.observed_share < 1.0
+    bound = agent.slots[iid].bound
+    assert np.all(space.lo <= bound.lo + 1e-9) and np.all(space.lo + np.array(space.states.shape) * 0.05 >= bound.hi)
+
+
+def test_no_space_at_all_means_no_surface_anywhere_in_mesh_view_observation_and_probe(tiny_world, book_agent):
+    agent, iid = book_agent
+    assert agent.instance_meshes(), "the book is meshed where it was seen"
+    pose = tiny_world.agent_poses[0][0]
+    seen = agent.render_view(pose, tiny_world.intrinsics, stride=8)
+    assert (seen.depth > 0).any()
+    lo, hi = agent.slots[iid].bound.lo, agent.slots[iid].bound.hi
+    grid = ColumnGrid(np.arange(lo[0], hi[0], 0.02), np.arange(lo[1], hi[1], 0.02), np.arange(lo[2], hi[2], 0.02))
+    assert np.isfinite(column_map(agent, grid).top).any()
+    own = agent.observed.spaces[iid]
+    try:  # nobody looked anywhere: the same networks draw nothing
+        agent.observed.spaces[iid] = ObservedSpace(own.cell_m, own.origin.copy(), np.full_like(own.states, FREE))
+        assert agent.instance_meshes() == {}
+        blind = agent.render_view(pose, tiny_world.intrinsics, stride=8)
+        assert not (blind.depth > 0).any()
+        columns = column_map(agent, grid)
+        assert not np.isfinite(columns.top).any()
+        centre = np.array([(lo + hi) / 2])
+        assert not surface_probe_coverage(agent, centre, np.array([[0.0, 0.0, 1.0]])).any()
+        agent.observed.spaces[iid] = ObservedSpace(own.cell_m, own.origin.copy(), np.zeros_like(own.states))
+        assert column_map(agent, grid).decided.max() == 0.0  # unknown space is undecided, not empty
+    finally:
+        agent.observed.spaces[iid] = own
+
+
+def test_mesh_faces_lie_only_near_observed_surface_and_the_setting_off_draws_as_before(tiny_world, book_agent):
+    agent, iid = book_agent
+    mesh = agent.instance_meshes()[iid]
+    assert agent.observed.get(iid).near_surface(mesh.triangles_center).all()
+    plain, _ = _book_agent(tiny_world, MappingConfig(keyframe_every=2, observed_cell_m=None))
+    assert plain.observed.spaces == {} and plain.export_instance(iid).observed is None
+    assert torch.equal(plain.banks["object"].params, agent.banks["object"].params)  # the mask never touches training
+    assert len(plain.instance_meshes()[iid].faces) >= len(mesh.faces)
+
+
+def test_a_space_travels_with_the_instance_merges_on_adoption_and_survives_a_checkpoint(tiny_world, book_agent,
+                                                                                        tmp_path):
+    agent, iid = book_agent
+    exported = agent.export_instance(iid)
+    assert exported.observed is not None and np.array_equal(exported.observed.states[exported.observed.states > 0],
+                                                            agent.observed.get(iid).states[agent.observed.get(iid).states > 0])
+    peer = MappingAgent(agent.config, device="cpu", seed=1)
+    peer.adopt_instance(7, exported)
+    assert np.array_equal(peer.observed.get(7).states, exported.observed.states)
+    peer.adopt_instance(8, exported)
+    peer.merge_instances(8, 7)  # a piece joins: its observations with it
+    assert 8 not in peer.observed.spaces and peer.observed.get(7).observed_share == exported.observed.observed_share
+    path = peer.save(tmp_path / "peer.pt")
+    restored = MappingAgent(agent.config, device="cpu", seed=5)
+    restored.load(path)
+    assert np.array_equal(restored.observed.get(7).states, peer.observed.get(7).states)
+    with pytest.raises(ValueError, match="observed_cell_m"):
+        MappingConfig(observed_cell_m=0.0)
+    with pytest.raises(ValueError, match="observed_ray_stride"):
+        MappingConfig(observed_ray_stride=0)
+
+
+def _payload_with(space: ObservedSpace, lo=np.zeros(3), hi=np.ones(3)) -> InstancePayload:
+    rng = np.random.default_rng(0)
+    return InstancePayload(3, "object", rng.normal(size=50).astype(np.float32), np.asarray(lo, np.float32),
+                           np.asarray(hi, np.float32), np.full(3, 0.5, np.float32), 0.75, 0, 0, "a red mug",
+                           rng.normal(size=8).astype(np.float32), 0.4, None, space)
+
+
+def _box_space(cell_m: float = 0.05, lo=np.zeros(3), hi=np.ones(3)) -> ObservedSpace:
+    space = ObservedSpace.empty(cell_m)
+    space.cover(np.asarray(lo, float), np.asarray(hi, float))
+    space.mark(np.array([[0.5, 0.5, 0.5]]), SURFACE)
+    return space
+
+
+def test_a_space_round_trips_on_the_wire_and_a_mismatched_one_is_refused_naming_the_field():
+    rules = MessageRules(observed_cell_m=0.05)
+    message = ParameterMessage(0, 1, 0, [_payload_with(_box_space())])
+    back = from_bytes(to_bytes(message), rules)
+    assert np.array_equal(back.instances[0].observed.states, message.instances[0].observed.states)
+    params_only = len(to_bytes(ParameterMessage(0, 1, 0, [replace(message.instances[0], observed=None)])))
+    assert len(to_bytes(message)) - params_only < 0.05 * 4 * param_counts(MappingConfig())["object"]  # < 5 % of one
+    with pytest.raises(MessageError, match="0.observed: observed space: cell size"):
+        from_bytes(to_bytes(ParameterMessage(0, 1, 0, [_payload_with(_box_space(0.1))])), rules)
+    shifted = _box_space(lo=np.full(3, 2.0), hi=np.full(3, 3.0))
+    with pytest.raises(MessageError, match="0.observed: a grid of cells .* does not match the instance's box"):
+        from_bytes(to_bytes(ParameterMessage(0, 1, 0, [_payload_with(shifted)])), rules)
+    channel = Channel(2, rules=rules)
+    with pytest.warns(UserWarning, match="refused: array 0.observed"):
+        d = channel.transmit(ParameterMessage(0, 1, 0, [_payload_with(shifted)]))
+    assert d.status == "dropped" and d.message is None
+
+
+def test_a_matched_instance_takes_the_peers_observations(tiny_world):
+    from mapping.team import RoundPlan, Team, TeamConfig, ConsistencyConfig
+    from openmulti_env.presets import mapping_config
+    from openmulti_env.world.stream import world_streams, world_vocabulary
+
+    streams = world_streams(tiny_world, seed=0, segmentation_errors=False)
+    mapping = replace(mapping_config("tiny"), iterations_per_keyframe=2, refit_steps=10)
+    team = Team(streams, TeamConfig(mapping=mapping, frames_per_round=4,
+                                    consistency=ConsistencyConfig(iterations=1, rays_per_pose=32)),
+                world_vocabulary(tiny_world), seed=0, device="cpu")
+    quiet = RoundPlan(np.zeros((2, 2), bool), np.zeros((2, 2), bool))
+    team.round(quiet)
+    receiver = team.members[1]
+    before = {iid: s.copy() for iid, s in receiver.mapper.observed.spaces.items()}
+    send = np.array([[False, True], [False, False]])
+    team.round(RoundPlan(send, np.zeros((2, 2), bool)))
+    matched = receiver.matches.get(0, {})
+    assert matched, "agent 1 aligned some of agent 0's instances"
+    grown = 0
+    for own in set(matched.values()):
+        space = receiver.mapper.observed.get(own)
+        assert space is not None
+        if own in before:
+            was = before[own]
+            assert np.count_nonzero(space.states) >= np.count_nonzero(was)
+            grown += np.count_nonzero(space.states) > np.count_nonzero(was)
+    assert grown or any(own not in before for own in matched.values())
