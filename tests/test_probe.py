@@ -28,7 +28,8 @@ class SphereBank:
 
 def _mapper(bank):
     return SimpleNamespace(device=torch.device("cpu"), banks={"object": bank},
-                           slots={7: SimpleNamespace(bank="object", row=0, alive=True)})
+                           slots={7: SimpleNamespace(bank="object", row=0, alive=True)},
+                           observed_field=lambda name: bank)  # no observed space: the field as it is
 
 
 def test_points_near_the_surface_are_covered_far_ones_are_not():

@@ -8,7 +8,7 @@ weights -> data loss (eq. 8-11) -> one AdamW step on the stacked parameters.
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import asdict
 from pathlib import Path
 from typing import Callable
 
@@ -22,38 +22,19 @@ from mapping.model.checkpoint import load_checkpoint, save_checkpoint
 from mapping.data import Frame, Intrinsics
 from mapping.evaluate import extract_instance_mesh
 from mapping.model.field import FieldOutput, LiveRows
+from mapping.model.training_batch import TrainingBatch
 from mapping.model.banks import instance_banks
 from mapping.model.instance_frames import refit_frames
 from mapping.model.instances import ExportedInstance, InstanceFrame, InstanceSlot
 from mapping.model.optim import AdamConfig, StackedAdam
-from mapping.model.keyframes import InstanceRays, KeyframeBuffer
+from mapping.model.keyframes import KeyframeBuffer
 from mapping.model.losses import data_loss, free_space_loss
 from mapping.model.observed_field import ObservedRows, observed_faces
 from mapping.model.observed_map import ObservedMaps
 from mapping.model.sdf_field import SdfBatch, SdfFieldBank, sdf_batch
 from mapping.runtime import flushed_denormals, resolve_device
-from mapping.model.render import (CompositeConfig, CompositeRender, RayBundle, RaySamples, ray_aabb, render_image,
+from mapping.model.render import (CompositeConfig, CompositeRender, RayBundle, ray_aabb, render_image,
                             render_occupancy, sample_along_rays)
-
-
-@dataclass
-class TrainingBatch:
-    """One bank's part of a training step: the sampled keyframe rays of its trainable instances
-    (``rows``, (N,)) and the samples along them inside each instance's box."""
-
-    bank: str
-    rows: torch.Tensor
-    rays: InstanceRays
-    samples: RaySamples
-    near: torch.Tensor
-    far: torch.Tensor
-    """(N, R) where each ray enters and leaves its instance's box (clamped to the camera)."""
-
-    @property
-    def positions(self) -> torch.Tensor:
-        """(N, R * S, 3) world points the field is evaluated on."""
-        n, r, s = self.samples.depths.shape
-        return self.samples.positions.reshape(n, r * s, 3)
 
 
 class MappingAgent:
@@ -334,8 +315,7 @@ class MappingAgent:
             mesh = extract_instance_mesh(bank.occupancy_fn(slot.row), slot.bound.lo, slot.bound.hi,
                                          voxel_size_m=voxel, max_resolution=self.config.max_mesh_resolution,
                                          color_fn=bank.colour_fn(slot.row), device=self.device)
-            space = self.observed.get(iid)
-            if mesh is not None and space is not None:
+            if mesh is not None and (space := self.observed.get(iid)) is not None:
                 mesh = observed_faces(mesh, space)
             if mesh is not None:
                 meshes[iid] = mesh
@@ -350,10 +330,9 @@ class MappingAgent:
         for name, bank in self.banks.items():
             rows = {s.row: iid for iid, s in self.slots.items() if s.bank == name and s.alive}
             if rows:
-                spaces = {k: self.observed.get(rows[r]) for k, r in enumerate(sorted(rows))}
-                fields.append(ObservedRows(LiveRows(bank, sorted(rows)),
-                                           {k: v for k, v in spaces.items() if v is not None}))
-                labels.append(torch.as_tensor([rows[r] for r in sorted(rows)], device=self.device))
+                ids = [rows[r] for r in sorted(rows)]
+                fields.append(ObservedRows(LiveRows(bank, sorted(rows)), self.observed.numbered(dict(enumerate(ids)))))
+                labels.append(torch.as_tensor(ids, device=self.device))
         c2w = torch.as_tensor(pose, dtype=torch.float32, device=self.device)
         return render_image(fields, c2w, intrinsics, CompositeConfig(samples_per_box=samples_per_box), stride=stride,
                             labels=labels)
@@ -361,8 +340,8 @@ class MappingAgent:
     def observed_field(self, bank: str) -> ObservedRows:
         """``banks[bank]`` read only near observed surface (``mapping.model.observed_field``): what the env's
         observation and reward query."""
-        return ObservedRows(self.banks[bank], {s.row: self.observed.get(iid) for iid, s in self.slots.items()
-                                               if s.bank == bank and self.observed.get(iid) is not None})
+        return ObservedRows(self.banks[bank], self.observed.numbered({s.row: i for i, s in self.slots.items()
+                                                                      if s.bank == bank}))
 
     # ---- checkpoints -----------------------------------------------------------------------------
     def save(self, path: str | Path) -> Path:

@@ -20,7 +20,9 @@ from typing import Callable, Sequence
 
 import torch
 
-from mapping.model.agent import MappingAgent, SdfBatch, TrainingBatch
+from mapping.model.agent import MappingAgent
+from mapping.model.sdf_field import SdfBatch
+from mapping.model.training_batch import TrainingBatch
 from mapping.model.field import FieldOutput
 from mapping.runtime import flushed_denormals
 

@@ -7,6 +7,8 @@ at the same places it updates an instance's box.
 
 from __future__ import annotations
 
+from typing import Mapping
+
 import numpy as np
 import torch
 
@@ -72,6 +74,10 @@ class ObservedMaps:
 
     def get(self, iid: int) -> ObservedSpace | None:
         return self.spaces.get(iid)
+
+    def numbered(self, ids: Mapping[int, int]) -> dict[int, ObservedSpace]:
+        """Number -> space of ``ids`` (number -> instance id, e.g. a bank's rows), for those that have one."""
+        return {k: self.spaces[iid] for k, iid in ids.items() if iid in self.spaces}
 
     def state(self) -> dict[int, torch.Tensor]:
         """Each space's wire form as a uint8 tensor (a checkpoint holds tensors, not bytes)."""
