@@ -29,6 +29,7 @@ def main() -> None:
     parser.add_argument("--preset", default="demo")
     parser.add_argument("--agent", type=int, default=0)
     parser.add_argument("--stride", type=int, default=16, help="every Nth valid pixel casts a free-space ray")
+    parser.add_argument("--cell-m", type=float, default=MappingConfig().observed_cell_m, help="the lattice's cell")
     args = parser.parse_args()
     tree = get_preset(args.preset)
     world = World.build(args.scene, seed=0, config=world_config(args.preset, 4))
@@ -45,14 +46,15 @@ def main() -> None:
             points = frame.backproject(mask=frame.instance == iid)
             box = InstanceBound.from_points(points)
             bounds[iid] = box if iid not in bounds else bounds[iid].union(box)
-            space = spaces.setdefault(int(iid), ObservedSpace.empty())
+            space = spaces.setdefault(int(iid), ObservedSpace.empty(args.cell_m))
             observe_frame(space, points, camera, bounds[iid].lo, bounds[iid].hi,
                           free_ends=np.concatenate([rays, points[::4]]))
         seconds += time.perf_counter() - start
         keyframes += 1
     counts = param_counts(MappingConfig())
     sizes = np.array([len(s.to_bytes()) for s in spaces.values()])
-    print(f"{args.scene} {args.preset}, agent {args.agent}: {keyframes} keyframes, {len(spaces)} instances")
+    print(f"{args.scene} {args.preset}, agent {args.agent}: {keyframes} keyframes, {len(spaces)} instances, "
+          f"{100 * args.cell_m:g} cm cells")
     print(f"marking: {1000 * seconds / max(keyframes, 1):.0f} ms per keyframe")
     print(f"grid on the wire: median {int(np.median(sizes))} B, max {int(sizes.max())} B; an object network "
           f"{4 * counts['object']} B, a structure network {4 * counts['structure']} B in float32 "

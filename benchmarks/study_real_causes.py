@@ -26,6 +26,8 @@ Variants (``--variants`` picks some; the default runs all):
 | `segmenter_range_aware_3m5` | `segmenter_range_aware`, no masks beyond 3.5 m | segments at range |
 | `carve_crossing_half` | `carve` and `crossing_half` (on a recording: `base`; for ``--scene``) | free space in the box |
 | `crossing_half_range_aware` | `crossing_half` with `segmenter_range_aware`'s segmenter | both |
+| `unmasked` | `base` without observed spaces (`observed_cell_m=None`: surface drawn wherever a network says, as before issue 44) | surface no ray saw |
+| `segmenter_range_aware_unmasked` | `segmenter_range_aware` without observed spaces | both |
 | `kinect_noise` | (``--scene``) the simulator's depth with Kinect v1's noise, 1.5 mm x depth^2 | depth noise at range |
 | `kinect_holes` | (``--scene``) 12 % of the depth pixels dropped at random | depth holes |
 | `kinect` | (``--scene``) both | |
@@ -121,6 +123,8 @@ VARIANTS: dict[str, Variant] = {
                                                      loss_weights=replace(m.loss_weights, free_space=10.0))),
     "crossing_half_range_aware": Variant(lambda m: replace(m, free_space_rays="crossing", own_ray_fraction=0.5),
                                          segmenter=RANGE_AWARE),
+    "unmasked": Variant(lambda m: replace(m, observed_cell_m=None)),
+    "segmenter_range_aware_unmasked": Variant(lambda m: replace(m, observed_cell_m=None), segmenter=RANGE_AWARE),
     "kinect_noise": Variant(sensor=KINECT_NOISE),
     "kinect_holes": Variant(sensor=KINECT_HOLES),
     "kinect": Variant(sensor={**KINECT_NOISE, **KINECT_HOLES}),

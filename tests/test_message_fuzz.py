@@ -14,13 +14,22 @@ import pytest
 
 from mapping.model.banks import param_counts
 from mapping.model.agent_config import MappingConfig
+from mapping.model.observed import SURFACE, ObservedSpace
 from mapping.team import (Channel, InstancePayload, MessageError, MessageRules, ParameterMessage, RayMessage,
                           from_bytes, to_bytes)
 from mapping.team.messages import DegreeMessage, PointCloudMessage, replay_pixels
 
 COUNTS = param_counts(MappingConfig())
 FEATURE_DIM = 8
-RULES = MessageRules(num_agents=3, param_counts=COUNTS, feature_dim=FEATURE_DIM)
+RULES = MessageRules(num_agents=3, param_counts=COUNTS, feature_dim=FEATURE_DIM, observed_cell_m=0.05)
+
+
+def _observed() -> ObservedSpace:
+    """An observed space over the payloads' box [0, 1]^3 with one surface cell."""
+    space = ObservedSpace.empty(0.05)
+    space.cover(np.zeros(3), np.ones(3))
+    space.mark(np.array([[0.5, 0.5, 0.5]]), SURFACE)
+    return space
 
 
 def _payload(iid: int, bank: str = "object", cloud: bool = True) -> InstancePayload:
@@ -28,7 +37,7 @@ def _payload(iid: int, bank: str = "object", cloud: bool = True) -> InstancePayl
     return InstancePayload(iid, bank, rng.normal(size=COUNTS[bank]).astype(np.float32), np.zeros(3, np.float32),
                            np.ones(3, np.float32), np.full(3, 0.5, np.float32), 0.75, 1, 2, "a red mug",
                            rng.normal(size=FEATURE_DIM).astype(np.float32), 0.4,
-                           rng.normal(size=(20, 3)).astype(np.float32) if cloud else None)
+                           rng.normal(size=(20, 3)).astype(np.float32) if cloud else None, _observed())
 
 
 def _valid_messages() -> list[bytes]:
@@ -106,6 +115,10 @@ def _assert_usable(message) -> None:
             assert np.all(np.isfinite(inst.params)) and math.isfinite(inst.frame_half) and inst.frame_half > 0
             assert 0.0 <= inst.confidence <= 1.0 and isinstance(inst.caption, str)
             assert isinstance(inst.instance_id, int) and len(inst.caption_feature) == FEATURE_DIM
+            if inst.observed is not None:  # on the receiver's lattice, over the instance's box
+                assert inst.observed.cell_m == 0.05 and inst.observed.states.size <= RULES.max_observed_cells
+                first = inst.observed.cells_of(inst.bound_lo[None].astype(np.float64))[0]
+                assert np.all(np.abs(inst.observed.origin - first) <= 1)
     if isinstance(message, RayMessage):
         assert len(message.poses) * message.rays_per_pose <= RULES.max_rays
         replay_pixels(message)  # bounded

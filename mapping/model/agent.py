@@ -90,8 +90,8 @@ class MappingAgent:
             pts = frame.backproject(mask=instance == iid)
             bound = InstanceBound.from_points(pts)
             self._update_instance(iid, bound)
-        self.observed.observe_keyframe(frame, instance, {iid: (self.slots[iid].bound.lo, self.slots[iid].bound.hi)
-                                                         for iid in seen if iid in self.slots})
+        self.observed.observe_keyframe(frame, instance, {i: (s.bound.lo, s.bound.hi) for i, s in self.slots.items()
+                                                         if s.alive}, set(seen))
         return True
 
     def _update_instance(self, iid: int, bound: InstanceBound) -> None:

@@ -35,17 +35,21 @@ class ObservedMaps:
     def enabled(self) -> bool:
         return self.cell_m is not None
 
-    def observe_keyframe(self, frame: Frame, instance: np.ndarray, boxes: dict[int, tuple[np.ndarray, np.ndarray]]
-                         ) -> None:
-        """Mark one keyframe in the spaces of the instances it shows (``boxes``: id -> their boxes now):
-        free along its rays up to their depth, surface at each instance's own depth points."""
+    def observe_keyframe(self, frame: Frame, instance: np.ndarray, boxes: dict[int, tuple[np.ndarray, np.ndarray]],
+                         seen: set[int]) -> None:
+        """Mark one keyframe: in the space of every instance in ``boxes`` (id -> its box now: the map's live
+        instances, adopted ones too) free along the frame's rays that cross it up to their depth, and for the
+        instances the frame shows (``seen``) surface at their own depth points."""
         if not self.enabled or not boxes:
             return
         camera = np.asarray(frame.pose, np.float64)[:3, 3]
         valid = np.isfinite(frame.depth) & (frame.depth > 0)
         rays = frame.backproject(mask=valid)[::self.ray_stride]
+        empty = np.zeros((0, 3))
         for iid, (lo, hi) in boxes.items():
-            points = frame.backproject(mask=valid & (instance == iid))
+            if iid not in seen and iid not in self.spaces:
+                continue  # nothing seen of it yet: its grid starts with its first sight
+            points = frame.backproject(mask=valid & (instance == iid)) if iid in seen else empty
             space = self.spaces.setdefault(iid, ObservedSpace.empty(self.cell_m))
             observe_frame(space, points, camera, lo, hi, free_ends=np.concatenate([rays, points[::OWN_PIXEL_STRIDE]]))
 
