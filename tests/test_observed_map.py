@@ -38,19 +38,19 @@ def book_agent(tiny_world):
 def test_keyframes_mark_the_book_surface_where_its_depth_fell_and_free_in_front(tiny_world, book_agent):
     agent, iid = book_agent
     space = agent.observed.get(iid)
-    assert space is not None and space.cell_m == 0.05
+    assert space is not None and space.cell_m == MappingConfig().observed_cell_m
     frame = tiny_world.render(0, 0)
     points = frame.backproject(mask=frame.instance == iid)
     assert np.mean(space.state_at(points) == SURFACE) > 0.99  # every depth point of the book lies in a surface cell
     camera = frame.pose[:3, 3]
     towards = (camera - points[::20]) / np.linalg.norm(camera - points[::20], axis=1)[:, None]
-    in_front = np.concatenate([points[::20] + d * towards for d in (0.12, 0.2, 0.3)])
-    inside = np.all((in_front >= space.lo) & (in_front < space.lo + np.array(space.states.shape) * 0.05), axis=1)
+    in_front = np.concatenate([points[::20] + d * towards for d in (0.08, 0.12, 0.2, 0.3)])
+    inside = np.all((in_front >= space.lo) & (in_front < space.lo + np.array(space.states.shape) * space.cell_m), axis=1)
     assert inside.any() and (space.states == FREE).any()
     assert np.mean(space.state_at(in_front[inside]) > UNKNOWN) > 0.9  # rays to the camera crossed these cells
     assert 0.0 < space.observed_share < 1.0
     bound = agent.slots[iid].bound
-    assert np.all(space.lo <= bound.lo + 1e-9) and np.all(space.lo + np.array(space.states.shape) * 0.05 >= bound.hi)
+    assert np.all(space.lo <= bound.lo + 1e-9) and np.all(space.lo + np.array(space.states.shape) * space.cell_m >= bound.hi)
 
 
 def test_no_space_at_all_means_no_surface_anywhere_in_mesh_view_observation_and_probe(tiny_world, book_agent):

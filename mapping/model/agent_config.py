@@ -72,11 +72,13 @@ class MappingConfig:
     """Extra local iterations in the round of an agent's first keyframe (MACIM: 200 on its first frame)."""
     iterations_after_stream: int = field(default=0, metadata=NEUTRAL_DEFAULT)
     """Local iterations after an agent's last frame, on top of ``TeamConfig.min_local_steps`` (MACIM: 200)."""
-    observed_cell_m: float | None = 0.05
+    observed_cell_m: float | None = 0.025
     """Cell of each instance's observed space (``mapping.model.observed``), sent with its parameters: meshes,
     rendered views, the env's observations and its reward hold surface only near cells where some keyframe's
-    depth fell. None: none kept, the networks drawn wherever they say (the tables recorded before issue 44;
-    a global map keeps none: ``TeamConfig.global_map``)."""
+    depth fell, i.e. within one to two cells of it. 2.5 cm keeps that inside the depth check's 5 cm (5 cm cells
+    left room0 `demo` at 7.7 % of pixels off, 2.5 cm at 5.0 %; docs/observed_space.md). None: none kept, the
+    networks drawn wherever they say (the tables recorded before issue 44; a global map keeps none:
+    ``TeamConfig.global_map``)."""
     observed_ray_stride: int = 16
     """Every n-th valid pixel of a keyframe marks its ray free in each instance box it crosses (with every
     4th pixel of the instance's own)."""

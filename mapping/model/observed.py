@@ -3,8 +3,8 @@
 An instance's network is trained only where rays passed; elsewhere inside its box it is free to
 invent surface, and meshing, rendering and the depth check then draw it (issue 44: 37-87 % of the
 pixels off by more than 5 cm were such surface). So each instance keeps a coarse grid of its box on a
-world-aligned lattice (``cell_m``, default 5 cm), each cell ``UNKNOWN``, ``FREE`` (a ray crossed it
-before reaching its depth) or ``SURFACE`` (a depth point of the instance fell in it). Cells on one
+world-aligned lattice (``cell_m``; a mapper's: ``MappingConfig.observed_cell_m``), each cell ``UNKNOWN``,
+``FREE`` (a ray crossed it before reaching its depth) or ``SURFACE`` (a depth point of the instance fell in it). Cells on one
 world lattice make two agents' grids of one object merge cell by cell (the element-wise maximum:
 surface over free over unknown), whatever frames their networks use.
 
@@ -22,7 +22,7 @@ import numpy as np
 
 UNKNOWN, FREE, SURFACE = 0, 1, 2
 CELL_M = 0.05
-"""Default lattice spacing: the depth check's 5 cm tolerance."""
+"""Lattice spacing of ``ObservedSpace.empty`` when none is given (a mapper's is ``MappingConfig.observed_cell_m``)."""
 SURFACE_REACH_CELLS = 1
 """A mesh, a rendered view or an observation may hold surface only within this many cells (26-connected) of
 a ``SURFACE`` cell: a network's 0.5 level lies within a few cm of the depth points it was trained on, and a
