@@ -34,7 +34,8 @@ ground truth (a test changes the world where an agent never looks and checks tha
 the same bit for bit). A `Dict` (layout and meanings in `policies.observation`, which policies read by name):
 `map`, a top-down map of the room (rows +y, columns +x, channels last): `map_height` (top of what its own
 fields hold in the column, queried on a fixed 5 cm voxel grid over the room's box, the ceiling band left
-out), `map_decided` (share of the column its fields decide), `observed` (cells its own depth has hit),
+out, only near surface its instances observed), `map_decided` (share of the column its fields decide where
+its instances looked), `observed` (cells its own depth has hit),
 `received` (footprints of the object instances held from peers), `own_path` (path 128, current position
 255), `peer_poses` (peers' last positions known from their ray messages, fading with age); `comm`, per
 peer in action order what its side of the link knows (`holds`, `up_to_date`, `change` of its map since
@@ -84,7 +85,8 @@ spelling (e.g. `success_probability=0.5`, `comm_cost_per_mb=0.01`, `consistency=
 for the dots (`team__exchange__float16=True`). `env.config` is the episode's whole tree.
 
 ### Version History
-* v0: first release (openmulti 0.1).
+* v0: first release (openmulti 0.1). 2026-12-06: `map_height`, `map_decided` and the reward's completion
+  estimate read only surface the agent's instances observed (docs/observed_space.md); shapes unchanged.
 """
 
 from __future__ import annotations
