@@ -26,6 +26,7 @@ Variants (``--variants`` picks some; the default runs all):
 | `segmenter_range_aware_3m5` | `segmenter_range_aware`, no masks beyond 3.5 m | segments at range |
 | `carve_crossing_half` | `carve` and `crossing_half` (on a recording: `base`; for ``--scene``) | free space in the box |
 | `crossing_half_range_aware` | `crossing_half` with `segmenter_range_aware`'s segmenter | both |
+| `split_1m` | `base`, object clusters wider than 1 m cut along a 1 m world lattice (`max_object_extent_m`) | segments spanning a counter |
 | `unmasked` | `base` without observed spaces (`observed_cell_m=None`: surface drawn wherever a network says, as before issue 44) | surface no ray saw |
 | `segmenter_range_aware_unmasked` | `segmenter_range_aware` without observed spaces | both |
 | `kinect_noise` | (``--scene``) the simulator's depth with Kinect v1's noise, 1.5 mm x depth^2 | depth noise at range |
@@ -124,6 +125,7 @@ VARIANTS: dict[str, Variant] = {
     "crossing_half_range_aware": Variant(lambda m: replace(m, free_space_rays="crossing", own_ray_fraction=0.5),
                                          segmenter=RANGE_AWARE),
     "unmasked": Variant(lambda m: replace(m, observed_cell_m=None)),
+    "split_1m": Variant(segmenter=GeometricSegmenterConfig(max_object_extent_m=1.0)),
     "segmenter_range_aware_unmasked": Variant(lambda m: replace(m, observed_cell_m=None), segmenter=RANGE_AWARE),
     "kinect_noise": Variant(sensor=KINECT_NOISE),
     "kinect_holes": Variant(sensor=KINECT_HOLES),

@@ -175,3 +175,33 @@ def test_pixels_beyond_max_depth_get_no_mask_and_the_rest_is_segmented_as_before
 
 def test_ransac_on_too_few_points_finds_nothing():
     assert len(ransac_plane(np.zeros((2, 3)), np.full(2, 0.02), 10, np.random.default_rng(0))) == 0
+
+
+def test_an_object_cluster_wider_than_the_limit_is_cut_on_a_world_lattice_and_a_small_one_is_not():
+    from mapping.perception.geometric_segmenter import lattice_parts
+
+    depth = np.full((120, 160), 2.0)
+    depth[40:80, 10:150] = 1.45 + 0.06 * np.sin(np.arange(140) / 5.0)[None, :]  # clutter about 2.6 m long: no plane
+    depth[95:110, 70:90] = 1.6 - 0.002 * np.arange(20)[None, :]  # a small thing, under a metre
+    frame = _looking_down(depth)
+    whole = GeometricSegmenter().segment(frame)
+    cut = GeometricSegmenter(GeometricSegmenterConfig(max_object_extent_m=1.0)).segment(frame)
+    counter = np.zeros(depth.shape, bool)
+    counter[40:80, 10:150] = True
+    small = np.zeros(depth.shape, bool)
+    small[95:110, 70:90] = True
+    assert len(set(np.unique(whole.labels[counter])) - {0}) == 1
+    parts = set(np.unique(cut.labels[counter])) - {0}
+    assert len(parts) >= 3  # about 2.6 m on a 1 m lattice
+    points = frame.backproject(mask=np.ones(depth.shape, bool))
+    for part in parts:  # each part within one lattice cell: at most 1 m wide
+        xyz = points[(cut.labels[depth > 0] == part)]
+        assert np.all(np.ptp(xyz, axis=0) <= 1.0 + 1e-6)
+    thing, share = _dominant(cut.labels, small)
+    assert share > 0.8 and cut.segment(thing).caption == OBJECT_CAPTION  # under a metre: whole
+    again = GeometricSegmenter(GeometricSegmenterConfig(max_object_extent_m=1.0)).segment(frame)
+    assert np.array_equal(again.labels, cut.labels)
+    tiny = np.array([[0.0, 0.0, 0.0], [0.5, 0.0, 0.0]])
+    assert [p.tolist() for p in lattice_parts(tiny, np.arange(2), 1.0, 1)] == [[0, 1]]
+    with pytest.raises(ValueError, match="max_object_extent_m"):
+        GeometricSegmenterConfig(max_object_extent_m=0.0)

@@ -76,10 +76,19 @@ class GeometricSegmenterConfig:
     max_depth_m: float | None = None
     """Pixels deeper than this get no mask (None: every valid pixel is segmented). E.g. 3.5 m, the far
     end of a Kinect v1's practical range, where its noise reaches 1.8 cm."""
+    max_object_extent_m: float | None = None
+    """Object clusters wider than this on some axis are cut along a world-aligned lattice of this spacing
+    (the same cuts in every frame, so fusion sees the same pieces; pieces under ``cluster_min_points`` get no
+    mask). One 32-wide network smooths a 3 m cluster of a counter and what stands on it into surface in front
+    of it (docs/observed_space.md). None: never cut."""
     min_mask_pixels: int = 100
     """Masks with fewer full-resolution pixels are dropped (OpenObj's 100)."""
     seed: int = 0
     """Seed of RANSAC's draws, with the frame's index: a frame gets the same masks every time."""
+
+    def __post_init__(self) -> None:
+        if self.max_object_extent_m is not None and not self.max_object_extent_m > 0:
+            raise ValueError(f"max_object_extent_m must be a positive length or None, got {self.max_object_extent_m}")
 
 
 RANGE_AWARE = GeometricSegmenterConfig(depth_noise_m_per_m2=0.0015, clustering="organized")
@@ -174,6 +183,10 @@ class GeometricSegmenter:
             ranges = np.linalg.norm(points - frame.pose[:3, 3], axis=1)
             eps = max(cfg.cluster_eps_m, 3.0 * float(np.median(ranges)) * stride / frame.intrinsics.fx)
             pieces = _clusters(points[remaining], eps, cfg.cluster_min_points)
+        if cfg.max_object_extent_m is not None:
+            pieces = [part for piece in pieces for part in lattice_parts(points[remaining], piece,
+                                                                         cfg.max_object_extent_m,
+                                                                         cfg.cluster_min_points)]
         for piece in pieces:
             captions.append(OBJECT_CAPTION)
             labels[remaining[piece]] = len(captions)
@@ -211,6 +224,18 @@ def _fit_plane(points: np.ndarray) -> tuple[np.ndarray, float]:
     centre = points.mean(axis=0)
     normal = np.linalg.svd(points - centre, full_matrices=False)[2][-1]
     return normal, float(normal @ centre)
+
+
+def lattice_parts(points: np.ndarray, piece: np.ndarray, spacing_m: float, min_points: int) -> list[np.ndarray]:
+    """``piece`` (indices of ``points``, (n, 3) world) whole when it spans at most ``spacing_m`` on every
+    axis, else its parts in the cells of a world lattice of that spacing (parts under ``min_points`` left
+    out), largest first."""
+    cloud = points[piece]
+    if np.all(np.ptp(cloud, axis=0) <= spacing_m):
+        return [piece]
+    _, cell = np.unique(np.floor(cloud / spacing_m).astype(np.int64), axis=0, return_inverse=True)
+    parts = [piece[cell.ravel() == k] for k in range(int(cell.max()) + 1)]
+    return sorted((part for part in parts if len(part) >= min_points), key=len, reverse=True)
 
 
 def _grid_pieces(members: np.ndarray, valid: np.ndarray) -> list[np.ndarray]:
