@@ -19,12 +19,12 @@ from __future__ import annotations
 import argparse
 
 import numpy as np
-import trimesh
 from scipy.ndimage import binary_dilation
 
 from mapping.evaluate.depth_check import depth_check
 from mapping.evaluate.meshing import merge_instance_meshes
 from mapping.model.observed import FREE, SURFACE, ObservedSpace
+from mapping.model.observed_field import observed_faces
 from mapping.perception import shared_text_encoder
 from mapping.team import Team
 from openmulti_env.experiment import read_config, resolved_team
@@ -42,20 +42,6 @@ def allowed_cells(space: ObservedSpace, reach: int, without_free: bool) -> np.nd
     surface = space.states == SURFACE
     allowed = binary_dilation(surface, np.ones((3, 3, 3), bool), iterations=reach) if reach else surface
     return allowed & (space.states != FREE) if without_free else allowed
-
-
-def kept_faces(mesh: trimesh.Trimesh, space: ObservedSpace, allowed: np.ndarray) -> trimesh.Trimesh | None:
-    """``mesh`` with the faces whose centre lies in an allowed cell (None: none)."""
-    idx = space.cells_of(mesh.triangles_center) - space.origin
-    inside = np.all((idx >= 0) & (idx < np.array(allowed.shape)), axis=1)
-    keep = np.zeros(len(idx), bool)
-    keep[inside] = allowed[tuple(idx[inside].T)]
-    if not keep.any():
-        return None
-    out = mesh.copy()
-    out.update_faces(keep)
-    out.remove_unreferenced_vertices()
-    return out
 
 
 def main() -> None:
@@ -80,8 +66,8 @@ def main() -> None:
         for name, rule in RULES.items():
             meshes = {}
             for iid, mesh in raw.items():
-                kept = mesh if rule is None or iid not in spaces else kept_faces(mesh, spaces[iid],
-                                                                                 allowed_cells(spaces[iid], *rule))
+                kept = mesh if rule is None or iid not in spaces else observed_faces(mesh, spaces[iid],
+                                                                                     allowed_cells(spaces[iid], *rule))
                 if kept is not None:
                     meshes[iid] = kept
             check = depth_check(merge_instance_meshes(meshes)[0] if meshes else None, frames, stride=4)

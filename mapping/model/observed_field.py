@@ -100,12 +100,18 @@ class ObservedRows:
         return allowed
 
 
-def observed_faces(mesh: trimesh.Trimesh, space: ObservedSpace) -> trimesh.Trimesh | None:
-    """``mesh`` with only the faces whose centre lies within ``space``'s surface reach (None: none left).
+def observed_faces(mesh: trimesh.Trimesh, space: ObservedSpace, allowed: np.ndarray | None = None
+                   ) -> trimesh.Trimesh | None:
+    """``mesh`` with only the faces whose centre lies in an ``allowed`` cell of ``space``'s grid (default: its
+    surface reach); None when none is left.
 
     Faces are cut rather than the occupancy zeroed before marching cubes: a zeroed unknown interior would
     close every object with a second, invented face a few cm behind the surface it saw."""
-    keep = space.near_surface(np.asarray(mesh.triangles_center))
+    allowed = space.surface_reach() if allowed is None else allowed
+    idx = space.cells_of(np.asarray(mesh.triangles_center)) - space.origin
+    inside = np.all((idx >= 0) & (idx < np.array(allowed.shape)), axis=1)
+    keep = np.zeros(len(idx), bool)
+    keep[inside] = allowed[tuple(idx[inside].T)]
     if keep.all():
         return mesh
     if not keep.any():
