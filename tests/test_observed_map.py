@@ -169,3 +169,19 @@ def test_a_matched_instance_takes_the_peers_observations(tiny_world):
             assert np.count_nonzero(space.states) >= np.count_nonzero(was)
             grown += np.count_nonzero(space.states) > np.count_nonzero(was)
     assert grown or any(own not in before for own in matched.values())
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
+def test_the_masked_view_answers_on_the_points_device():
+    from mapping.model.observed_field import ObservedRows
+
+    class Full:  # occupancy 1 everywhere
+        num_instances, bound_min, bound_max = 1, torch.zeros(1, 3), torch.ones(1, 3)
+
+        def query(self, points, rows, with_colour=True, block_size=4096):
+            from mapping.model.field import FieldOutput
+            return FieldOutput(torch.ones(len(points), device=points.device), None)
+
+    points = torch.tensor([[0.5, 0.5, 0.5], [0.05, 0.05, 0.05]], device="cuda")
+    out = ObservedRows(Full(), {0: _box_space()}).query(points, torch.zeros(2, dtype=torch.long, device="cuda"))
+    assert out.occupancy.device.type == "cuda" and out.occupancy.tolist() == [1.0, 0.0]
