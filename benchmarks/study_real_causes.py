@@ -26,7 +26,7 @@ Variants (``--variants`` picks some; the default runs all):
 | `segmenter_range_aware_3m5` | `segmenter_range_aware`, no masks beyond 3.5 m | segments at range |
 | `carve_crossing_half` | `carve` and `crossing_half` (on a recording: `base`; for ``--scene``) | free space in the box |
 | `crossing_half_range_aware` | `crossing_half` with `segmenter_range_aware`'s segmenter | both |
-| `split_1m` | `base`, object clusters wider than 1 m cut along a 1 m world lattice (`max_object_extent_m`) | segments spanning a counter |
+| `split_1m` | `base`, object clusters wider than 1 m cut along a 1 m world lattice (`max_object_extent_m`; the default since 2026-12-06, so today the same as `base`, whose rows of that day are uncut) | segments spanning a counter |
 | `unmasked` | `base` without observed spaces (`observed_cell_m=None`: surface drawn wherever a network says, as before issue 44) | surface no ray saw |
 | `segmenter_range_aware_unmasked` | `segmenter_range_aware` without observed spaces | both |
 | `kinect_noise` | (``--scene``) the simulator's depth with Kinect v1's noise, 1.5 mm x depth^2 | depth noise at range |

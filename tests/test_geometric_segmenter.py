@@ -152,7 +152,8 @@ def test_a_trail_of_stray_points_does_not_join_two_objects():
     depth[40:70, 30:60] = 1.5
     depth[40:70, 100:130] = 1.5
     depth[54:56, 60:100] = 1.5  # 2 pixels = one cell of the stride-2 grid
-    clusters_only = replace(RANGE_AWARE, max_planes=0)  # (as planes, coplanar pieces are joined on purpose)
+    # (as planes, coplanar pieces are joined on purpose; uncut, so that only the core rule separates them)
+    clusters_only = replace(RANGE_AWARE, max_planes=0, max_object_extent_m=None)
     joined = GeometricSegmenter(clusters_only).segment(_looking_down(depth))
     assert joined.labels[55, 45] != 0 and joined.labels[55, 45] == joined.labels[55, 115]  # without it: one piece
     seg = GeometricSegmenter(replace(clusters_only, cluster_core_neighbours=6)).segment(_looking_down(depth))
@@ -184,8 +185,8 @@ def test_an_object_cluster_wider_than_the_limit_is_cut_on_a_world_lattice_and_a_
     depth[40:80, 10:150] = 1.45 + 0.06 * np.sin(np.arange(140) / 5.0)[None, :]  # clutter about 2.6 m long: no plane
     depth[95:110, 70:90] = 1.6 - 0.002 * np.arange(20)[None, :]  # a small thing, under a metre
     frame = _looking_down(depth)
-    whole = GeometricSegmenter().segment(frame)
-    cut = GeometricSegmenter(GeometricSegmenterConfig(max_object_extent_m=1.0)).segment(frame)
+    whole = GeometricSegmenter(GeometricSegmenterConfig(max_object_extent_m=None)).segment(frame)
+    cut = GeometricSegmenter().segment(frame)  # the default cuts at 1 m
     counter = np.zeros(depth.shape, bool)
     counter[40:80, 10:150] = True
     small = np.zeros(depth.shape, bool)
@@ -199,7 +200,7 @@ def test_an_object_cluster_wider_than_the_limit_is_cut_on_a_world_lattice_and_a_
         assert np.all(np.ptp(xyz, axis=0) <= 1.0 + 1e-6)
     thing, share = _dominant(cut.labels, small)
     assert share > 0.8 and cut.segment(thing).caption == OBJECT_CAPTION  # under a metre: whole
-    again = GeometricSegmenter(GeometricSegmenterConfig(max_object_extent_m=1.0)).segment(frame)
+    again = GeometricSegmenter().segment(frame)
     assert np.array_equal(again.labels, cut.labels)
     tiny = np.array([[0.0, 0.0, 0.0], [0.5, 0.0, 0.0]])
     assert [p.tolist() for p in lattice_parts(tiny, np.arange(2), 1.0, 1)] == [[0, 1]]
