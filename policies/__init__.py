@@ -2,7 +2,8 @@
 
 ``make_policy(name, num_agents)`` gives any policy by name (``policies.scripted.POLICY_FORMS``); every
 policy is called as ``policy(observations, infos, step) -> {agent: action}`` and says whether it reads
-observations (``reads_observations``: the layout is ``policies.observation``).
+observations (``reads_observations``: the layout is ``policies.observation``) and, when not ``entries``, its
+action form (``action_form``: ``instances`` for ``instance_novelty``).
 """
 
 from __future__ import annotations
@@ -19,6 +20,10 @@ def make_policy(name: str | PolicySpec, num_agents: int, seed: int = 0):
         from policies.novelty import NoveltyPolicy  # noqa: PLC0415
 
         policy = NoveltyPolicy(spec.settings["novelty"])
+    elif spec.rule == "instance_novelty":
+        from policies.instance_novelty import InstanceNoveltyPolicy  # noqa: PLC0415
+
+        policy = InstanceNoveltyPolicy(spec.settings["instance_novelty"])
     elif spec.rule in ("learned", "file"):
         from policies.learned import LearnedPolicy  # noqa: PLC0415
 

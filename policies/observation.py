@@ -31,6 +31,28 @@ action order (ascending index, skipping the agent itself). Per peer, from the ag
 
 Then ``budget_left`` (share of its byte budget left; 1 without a budget) and ``progress`` (share of its
 path's frames read).
+
+``links``: (N - 1, ``LINK_STATE``) float32 in [0, 1], peers in action order, what its radio reports of each
+link in the last round: ``up`` (1: the peer was within ``link_range_m``; every link before the first round)
+and ``room`` (the share of its map's network bytes the link carries in one round: 1 without a capacity
+limit, 0 when down).
+
+``instances`` (only with ``action_form="instances"``): (N - 1, M, ``INSTANCE_FEATURES``) float32 in [0, 1],
+peers in action order, M = ``instance_slots`` slots each. Slot m of peer k holds the m-th of the agent's
+shareable instances in the link's priority order (those the peer lacks first, then by change since the
+peer's copy, largest first, then those the peer maps too, then by id); the action's entry for that slot
+sends that instance. Per slot:
+
+- ``present``: 1 when the slot holds an instance (an agent with fewer than M has empty slots, all zeros);
+- ``lacks``: the peer holds no copy of it (as the link acknowledged);
+- ``change``: relative L2 change since the peer's copy (1 when it lacks it);
+- ``copy_age``: rounds since its copy reached the peer, divided by ``AGE_SCALE`` (1: never or that long ago);
+- ``shared``: the peer maps it too (one of the peer's own instances matched it over the Instance
+  Collaborative Graph): the instances parameter consistency (eq. 12) works on;
+- ``confidence``: its confidence (eq. 1-2);
+- ``size``: its box diagonal / ``SIZE_SCALE_M`` (at most 1);
+- ``age``: rounds since it appeared in the agent's map / ``AGE_SCALE`` (at most 1);
+- ``bytes``: its network's share of the link's room this round (1 without a limit or when it fills it).
 """
 
 from __future__ import annotations
@@ -43,8 +65,15 @@ MAP_CHANNELS = ("map_height", "map_decided", "observed", "received", "own_path",
 LINK_FEATURES = ("holds", "up_to_date", "change", "since_params", "since_rays", "since_received", "held_from_peer",
                  "bytes_share")
 AGENT_FEATURES = ("budget_left", "progress")
+LINK_STATE = ("up", "room")
+INSTANCE_FEATURES = ("present", "lacks", "change", "copy_age", "shared", "confidence", "size", "age", "bytes")
+OBSERVATION_VERSION = 2
+"""1: ``map`` and ``comm``; 2 (2026-12-06): ``links`` added, and ``instances`` with the instance action form.
+``map`` and ``comm`` are unchanged, so a policy that reads only them (the shipped network) reads either."""
 AGE_SCALE = 16.0
 """Rounds after which an age feature reads 1."""
+SIZE_SCALE_M = 4.0
+"""Box diagonal at which ``size`` reads 1."""
 
 
 def comm_size(num_agents: int) -> int:
@@ -80,3 +109,15 @@ def age_feature(rounds_done: int, last_round: int | None) -> float:
     if last_round is None:
         return 1.0
     return float(min(max(rounds_done - 1 - last_round, 0) / AGE_SCALE, 1.0))
+
+
+def link_state(observation: Mapping[str, np.ndarray], name: str) -> np.ndarray:
+    """(N - 1,) values of one ``LINK_STATE`` entry, peers in action order."""
+    return np.asarray(observation["links"])[..., LINK_STATE.index(name)]
+
+
+def instance_feature(observation: Mapping[str, np.ndarray], name: str) -> np.ndarray:
+    """(N - 1, M) values of one ``INSTANCE_FEATURES`` entry, peers in action order, slots in priority order."""
+    if "instances" not in observation:
+        raise KeyError("this observation has no 'instances' entry: make the env with action_form='instances'")
+    return np.asarray(observation["instances"])[..., INSTANCE_FEATURES.index(name)]

@@ -18,8 +18,9 @@ for what an observation holds); the fixed schedules here ignore the observations
 - ``bernoulli:P``: is not a schedule but a channel: ``always``, with each message arriving with
   probability P (the paper's communication-failure study); it spends ``always``'s bytes.
 
-``novelty[:settings]`` (``policies.novelty``) reads observations; ``learned`` and a file path are trained
-policies (``policies.learned``).
+``novelty[:settings]`` (``policies.novelty``) and ``instance_novelty[:settings]`` (``policies.instance_novelty``,
+on the ``instances`` action form: which instances go to which peer) read observations; ``learned`` and a file path
+are trained policies (``policies.learned``).
 """
 
 from __future__ import annotations
@@ -32,7 +33,7 @@ import numpy as np
 
 SCRIPTED_POLICIES = ("always", "never", "round_robin", "budget")
 POLICY_FORMS = "always, never, round_robin, budget, every:K, at:R1,R2,..., rate:Q, bernoulli:P, novelty[:settings], " \
-               "learned or a trained policy file (either with :mode for the deterministic mode of each entry)"
+               "instance_novelty[:settings], learned or a trained policy file (either with :mode for the deterministic mode of each entry)"
 
 
 class PolicyError(ValueError):
@@ -45,7 +46,7 @@ class PolicySpec:
 
     name: str
     rule: str
-    """always, never, round_robin, budget, every, at, rate, novelty, learned or file."""
+    """always, never, round_robin, budget, every, at, rate, novelty, instance_novelty, learned or file."""
     success_probability: float = 1.0
     settings: dict = field(default_factory=dict)
 
@@ -86,6 +87,14 @@ def parse_policy(name: str) -> PolicySpec:
         except ValueError as exc:
             raise PolicyError(f"policy {name!r}: {exc}") from None
         return PolicySpec(name, "novelty", settings={"novelty": settings})
+    if head == "instance_novelty":
+        from policies.instance_novelty import InstanceNoveltySettings  # noqa: PLC0415
+
+        try:
+            settings = InstanceNoveltySettings.parse(arg)
+        except ValueError as exc:
+            raise PolicyError(f"policy {name!r}: {exc}") from None
+        return PolicySpec(name, "instance_novelty", settings={"instance_novelty": settings})
     base, mode = (name[:-len(":mode")], "mode") if name.endswith(":mode") else (name, "sample")
     if base == "learned":
         return PolicySpec(name, "learned", settings={"path": "learned", "act": mode})

@@ -146,7 +146,7 @@ def test_infos_rewards_and_budget(cache):
         for a, info in infos.items():
             assert tuple(info) == INFO_KEYS and all(isinstance(v, float) and np.isfinite(v) for v in info.values())
             assert 0.0 <= info["budget_left_mb"] <= 0.02
-            penalty = 0.5 * info["messages_refused"]
+            penalty = 0.5 * info["messages_refused"] + 0.01 * info["bytes_sent"] / 1e6  # the default price per MB
             assert rewards[a] == pytest.approx(info["completion_gain"] / 100 - penalty)
             refused_seen |= info["messages_refused"] > 0
             total_reward += rewards[a]

@@ -32,7 +32,7 @@ from mapping.team.global_map import as_global_image, global_entry
 from mapping.team.inbox import Inbox
 from mapping.team.messages import InstancePayload
 from mapping.team.outbox import Outbox
-from mapping.team.report import AgentSnapshot, LinkState, PeerKnowledge
+from mapping.team.report import AgentSnapshot, InstanceOnLink, LinkState, PeerKnowledge, priority_order
 from mapping.model.topdown import ColumnGrid, ColumnMap, column_map
 
 
@@ -161,13 +161,16 @@ class TeamMember(StreamReader, Outbox, Inbox, Agreement):
         self.matches: dict[int, dict[int, int]] = {}  # peer -> peer id -> own id
         self.sent_vectors: dict[int, dict[int, np.ndarray]] = {}
         self.sent_cloud_points: dict[int, dict[int, int]] = {}
+        self.sent_rounds: dict[int, dict[int, int]] = {}  # peer -> own id -> round its vector last reached the peer
         self.duals: dict[str, torch.Tensor] = {}
         self.mixing_weights: dict[PairKey, float] = {}  # DSGD: the weight W_kj of each edge mixed last round
         self.peer_positions: dict[int, tuple[int, np.ndarray]] = {}  # peer -> (round, (3,) position) from its rays
         self._shadow: dict[int, tuple[int, list, list]] = {}
-        self._unacknowledged: dict[int, tuple[dict, dict]] = {}  # receiver -> bookkeeping of the message in flight
+        self._unacknowledged: dict[int, tuple[dict, dict, dict]] = {}  # receiver -> bookkeeping of the message in flight
         self.delivered_round: dict[str, dict[int, int]] = {"params": {}, "rays": {}, "points": {}}  # kind -> peer -> round
         self._last_position: np.ndarray | None = None
+        self.born_round: dict[int, int] = {}  # own id -> round it first appeared in a snapshot of this map
+        self.round_seen = 0
 
     @property
     def labels(self) -> dict[int, str]:
@@ -240,16 +243,23 @@ class TeamMember(StreamReader, Outbox, Inbox, Agreement):
         position = np.asarray(new_frames[-1].pose[:3, 3], np.float64) if new_frames else self._last_position
         self._last_position = position
         link_bytes = np.asarray(link_bytes)
+        self.round_seen = rounds
+        links, instance_links, map_bytes = self.link_states(link_bytes)
         return AgentSnapshot(self.index, rounds, self.next_frame, tuple(new_frames), position, len(live), own, peers,
-                             float(budget_left_bytes), int(link_bytes.sum()), links=self.link_states(link_bytes),
-                             frames_total=len(self.stream))
+                             float(budget_left_bytes), int(link_bytes.sum()), links=links, frames_total=len(self.stream),
+                             instance_links=instance_links, map_bytes=map_bytes)
 
-    def link_states(self, link_bytes: np.ndarray) -> dict[int, LinkState]:
+    def link_states(self, link_bytes: np.ndarray) -> tuple[dict[int, LinkState], dict[int, tuple[InstanceOnLink, ...]], int]:
         """Its side of the link to each peer (``link_bytes[j]``: bytes sent to j): how far each peer's copy
-        of its shareable instances is from their parameters now, and when messages last reached it."""
+        of its shareable instances is from their parameters now, and when messages last reached it; the same
+        per instance (``InstanceOnLink``, in ``priority_order``); and the wire bytes of all its vectors."""
         tolerance = self.config.exchange.up_to_date_tolerance
-        current = {iid: self.mapper.export_instance(iid).params for iid in self.shareable_ids()}
-        states = {}
+        exported = {iid: self.mapper.export_instance(iid) for iid in self.shareable_ids()}
+        current = {iid: inst.params for iid, inst in exported.items()}
+        element = 2 if self.config.exchange.float16 else 4
+        for iid in current:
+            self.born_round.setdefault(iid, self.round_seen)
+        states, per_instance = {}, {}
         for peer in (j for j in range(len(link_bytes)) if j != self.index):
             held = self.sent_vectors.get(peer, {})
             changes = [min(1.0, float(np.linalg.norm(p - held[iid]) / max(np.linalg.norm(held[iid]), 1e-12)))
@@ -261,7 +271,20 @@ class TeamMember(StreamReader, Outbox, Inbox, Agreement):
                 change=float(np.mean(changes)) if changes else 0.0,
                 params_round=self.delivered_round["params"].get(peer, self.delivered_round["points"].get(peer)),
                 rays_round=self.delivered_round["rays"].get(peer), bytes_sent=int(link_bytes[peer]))
-        return states
+            shared = set(self.matches.get(peer, {}).values())
+            rounds = self.sent_rounds.get(peer, {})
+            per_instance[peer] = tuple(priority_order([InstanceOnLink(
+                iid, iid not in held, change, rounds.get(iid), iid in shared, self.confidence_of(iid),
+                float(np.linalg.norm(exported[iid].bound_hi - exported[iid].bound_lo)), self.born_round[iid],
+                int(exported[iid].params.size * element)) for iid, change in zip(current, changes)]))
+        return states, per_instance, int(sum(p.size for p in current.values()) * element)
+
+    def confidence_of(self, iid: int) -> float:
+        """The instance's confidence (eq. 1-2; a peer's when alignment gave it a more confident meaning)."""
+        try:
+            return float(self.entry(iid).confidence)
+        except KeyError:
+            return 0.0
 
     def surface_coverage(self, points: np.ndarray, normals: np.ndarray) -> np.ndarray:
         """Which surface samples its map reproduces (``mapping.evaluate.probe``; the reward's view)."""

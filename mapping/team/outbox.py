@@ -8,23 +8,32 @@ A mixin of ``TeamMember``: the state it reads and writes is the member's (``mapp
 
 from __future__ import annotations
 
+from typing import Sequence
+
 import numpy as np
 
 from mapping.pointcloud import voxel_downsample
-from mapping.team.messages import InstancePayload, ParameterMessage, PointCloudMessage, RayMessage
+from mapping.team.messages import InstancePayload, ParameterMessage, PointCloudMessage, RayMessage, to_bytes
 
 
 class Outbox:
     """Message building and delivery bookkeeping of a ``TeamMember``."""
 
-    def parameter_message(self, receiver: int, round_index: int, degree: int) -> ParameterMessage:
-        """This agent's instances for ``receiver`` (what changed-only sending skips, clouds the first time
-        or after they doubled); what the receiver holds is booked only on ``acknowledge``."""
+    def parameter_message(self, receiver: int, round_index: int, degree: int,
+                          only: Sequence[int] | None = None, max_bytes: float | None = None) -> ParameterMessage | None:
+        """This agent's instances for ``receiver``: those of ``only`` (None: every shareable one) that changed-only
+        sending does not skip, clouds the first time or after they doubled; what the receiver holds is booked
+        only on ``acknowledge``. ``max_bytes`` (a link's room this round) keeps the instances that fit, in
+        ``instance_priority`` order; None when not even an empty message fits or ``only`` selects nothing."""
         ex = self.config.exchange
         sent = dict(self.sent_vectors.get(receiver, {}))
         clouds = dict(self.sent_cloud_points.get(receiver, {}))
+        chosen = None if only is None else {int(i) for i in only}
+        ids = [iid for iid in self.shareable_ids() if chosen is None or iid in chosen]
+        if chosen is not None and not ids:
+            return None
         payloads = []
-        for iid in self.shareable_ids():
+        for iid in ids:
             inst = self.mapper.export_instance(iid)
             last = sent.get(iid)
             if ex.changed_only is not None and last is not None and iid in clouds and (
@@ -35,17 +44,54 @@ class Outbox:
             if fused is not None and len(fused.points) and (
                     iid not in clouds or len(fused.points) >= ex.resend_cloud_growth * clouds[iid]):
                 cloud = voxel_downsample(fused.points, ex.cloud_voxel_m).astype(np.float32)
-                clouds[iid] = len(fused.points)
             entry = self.entry(iid)
             dtype = np.float16 if ex.float16 else np.float32
-            payloads.append(InstancePayload(
+            payloads.append((InstancePayload(
                 iid, inst.bank, inst.params.astype(dtype), inst.bound_lo.astype(np.float32),
                 inst.bound_hi.astype(np.float32), np.asarray(inst.frame.centre, np.float32), inst.frame.half,
                 inst.frame.origin, inst.frame.version, entry.caption, entry.caption_feature.astype(dtype),
-                entry.confidence, cloud, inst.observed))
-            sent[iid] = inst.params
-        self._unacknowledged[receiver] = (sent, clouds)
-        return ParameterMessage(self.index, receiver, round_index, payloads, degree)
+                entry.confidence, cloud, inst.observed), inst.params, None if cloud is None else len(fused.points)))
+        if max_bytes is not None and np.isfinite(max_bytes):
+            payloads = self._fit(payloads, receiver, round_index, degree, max_bytes)
+            if payloads is None:
+                return None
+        rounds = dict(self.sent_rounds.get(receiver, {}))
+        for payload, params, points in payloads:
+            sent[payload.instance_id] = params
+            rounds[payload.instance_id] = round_index
+            if points is not None:
+                clouds[payload.instance_id] = points
+        self._unacknowledged[receiver] = (sent, clouds, rounds)
+        return ParameterMessage(self.index, receiver, round_index, [p for p, _, _ in payloads], degree)
+
+    def _fit(self, payloads: list, receiver: int, round_index: int, degree: int, max_bytes: float) -> list | None:
+        """The payloads that fit in ``max_bytes``: taken in ``instance_priority`` order, each one that still fits
+        (first fit: a big network does not block the small ones behind it), kept in message order."""
+        def size_of(items: list) -> int:
+            kept = [p for p, _, _ in sorted(items, key=lambda item: item[0].instance_id)]
+            return len(to_bytes(ParameterMessage(self.index, receiver, round_index, kept, degree)))
+
+        empty = size_of([])
+        if empty > max_bytes:
+            return None
+        order = self.instance_priority(receiver, [p.instance_id for p, _, _ in payloads])
+        by_id = {item[0].instance_id: item for item in payloads}
+        chosen, used = [], empty
+        for iid in order:
+            cost = size_of([by_id[iid]]) - empty
+            if used + cost <= max_bytes:
+                chosen.append(by_id[iid])
+                used += cost
+        while chosen and size_of(chosen) > max_bytes:  # the header's few bytes of JSON are not quite additive
+            chosen.pop()
+        keep = {item[0].instance_id for item in chosen}
+        return [item for item in payloads if item[0].instance_id in keep]
+
+    def instance_priority(self, receiver: int, ids: Sequence[int]) -> list[int]:
+        """``ids`` in the order a full link serves them: those ``receiver`` lacks first, then the oldest copies
+        there (the round each last reached it), ties by id; what a full link left out leads the next message."""
+        rounds = self.sent_rounds.get(receiver, {})
+        return sorted(ids, key=lambda iid: (iid in rounds, rounds.get(iid, -1), iid))
 
     def shareable_ids(self) -> list[int]:
         """The instances a parameter message carries: its own (with pixels of its own frames), and the
@@ -65,7 +111,7 @@ class Outbox:
             return
         booked = self._unacknowledged.pop(receiver, None)
         if delivered and booked is not None:
-            self.sent_vectors[receiver], self.sent_cloud_points[receiver] = booked
+            self.sent_vectors[receiver], self.sent_cloud_points[receiver], self.sent_rounds[receiver] = booked
 
     def point_cloud_message(self, receiver: int, round_index: int) -> PointCloudMessage:
         """Every point this agent has observed so far (its fused instances' clouds), down-sampled."""

@@ -90,8 +90,9 @@ class MemberProcess:
         """Views of frames read before a restore (what a ray message of mapped views reads)."""
         self.frames.hand(first, views)
 
-    def parameter_message(self, receiver: int, round_index: int, degree: int) -> bytes:
-        return _wire(self.member.parameter_message(receiver, round_index, degree))
+    def parameter_message(self, receiver: int, round_index: int, degree: int, only=None,
+                          max_bytes: float | None = None) -> bytes | None:
+        return _wire(self.member.parameter_message(receiver, round_index, degree, only, max_bytes))
 
     def point_cloud_message(self, receiver: int, round_index: int) -> bytes:
         return _wire(self.member.point_cloud_message(receiver, round_index))
@@ -211,8 +212,10 @@ class RemoteMember(StreamReader):
         self.next_frame += len(read[0])
         return report
 
-    def parameter_message(self, receiver: int, round_index: int, degree: int) -> Message:
-        return _unwire(self._call("parameter_message", receiver, round_index, degree))
+    def parameter_message(self, receiver: int, round_index: int, degree: int, only=None,
+                          max_bytes: float | None = None) -> Message | None:
+        return _unwire(self._call("parameter_message", receiver, round_index, degree,
+                                  None if only is None else tuple(only), max_bytes))
 
     def point_cloud_message(self, receiver: int, round_index: int) -> Message:
         return _unwire(self._call("point_cloud_message", receiver, round_index))

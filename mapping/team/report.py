@@ -13,6 +13,7 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from mapping.data.frame import Frame
+from mapping.team.links import LinkLimits
 
 DELIVERY_STATUSES = ("delivered", "dropped", "over_budget")
 
@@ -119,6 +120,36 @@ class LinkState:
     """Bytes it has sent to the peer over the episode (delivered or not)."""
 
 
+@dataclass(frozen=True)
+class InstanceOnLink:
+    """What an agent knows of one of its own shareable instances on its link to one peer (what the link
+    acknowledged, what alignment matched): the unit an instance-level message chooses."""
+
+    instance_id: int
+    lacks: bool
+    """The peer holds no copy of it."""
+    change: float
+    """Relative L2 change since the peer's copy, at most 1 (1 when it lacks it)."""
+    copy_round: int | None
+    """Round the peer's copy reached it (None: never)."""
+    shared: bool
+    """The peer maps it too: one of the peer's own instances matched it over the Instance Collaborative Graph."""
+    confidence: float
+    """Its confidence (eq. 1-2)."""
+    diagonal_m: float
+    """Its box's diagonal."""
+    born_round: int
+    """Round it first appeared in the agent's map."""
+    nbytes: int
+    """Bytes of its network vector on the wire."""
+
+
+def priority_order(items: list[InstanceOnLink]) -> list[InstanceOnLink]:
+    """The documented order of an agent's instances on a link (``instances`` observation slots): those the peer
+    lacks first, then by change since the peer's copy (largest first), then those it maps too, then by id."""
+    return sorted(items, key=lambda x: (not x.lacks, -round(x.change, 6), not x.shared, x.instance_id))
+
+
 @dataclass
 class AgentSnapshot:
     """One agent's own knowledge after a round (never ground truth)."""
@@ -151,6 +182,12 @@ class AgentSnapshot:
     """Its side of the link to every peer."""
     frames_total: int = 0
     """Frames on its path (it knows the path it was given)."""
+    instance_links: dict[int, tuple[InstanceOnLink, ...]] = field(default_factory=dict)
+    """Per peer, its shareable instances on that link in ``priority_order``."""
+    map_bytes: int = 0
+    """Bytes of all its shareable instances' network vectors on the wire (what a full message costs, roughly)."""
+    links_up: dict[int, bool] = field(default_factory=dict)
+    """Per peer, whether the link was up in the last round (its radio's view; every link before the first)."""
 
     @property
     def name(self) -> str:
@@ -180,6 +217,8 @@ class RoundReport:
     done: bool
     agents: list[AgentSnapshot] = field(default_factory=list)
     """Each agent's knowledge after the round."""
+    links: LinkLimits | None = None
+    """Which links were up and the room each had at the round's start (``mapping.team.links``)."""
 
     @property
     def compute_s(self) -> list[float]:
@@ -201,8 +240,9 @@ class RoundReport:
                 "alignment": {name: asdict(counts) for name, counts in self.alignment.items()},
                 "losses": {name: terms.as_dict() for name, terms in self.losses.items()},
                 "local_s": list(self.local_s), "consistency_s": list(self.consistency_s),
-                "exchange_s": self.exchange_s, "done": self.done, "compute_s": self.compute_s, "fleet_s": self.fleet_s}
+                "exchange_s": self.exchange_s, "done": self.done, "compute_s": self.compute_s, "fleet_s": self.fleet_s,
+                **({"links": self.links.as_dict()} if self.links is not None else {})}
 
 
-__all__ = ["AgentSnapshot", "AlignmentCounts", "ConsistencyTerms", "DELIVERY_STATUSES", "DeliveryRecord", "LossTerms",
-           "PeerKnowledge", "RoundReport"]
+__all__ = ["AgentSnapshot", "AlignmentCounts", "ConsistencyTerms", "DELIVERY_STATUSES", "DeliveryRecord",
+           "InstanceOnLink", "LossTerms", "PeerKnowledge", "RoundReport", "priority_order"]

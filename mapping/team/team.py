@@ -29,8 +29,9 @@ from mapping.model.banks import param_counts
 from mapping.model.fleet import ExtraLoss, fleet_train
 from mapping.team.channel import DELIVERED, DROPPED, OVER_BUDGET, Channel
 from mapping.team.config import TeamConfig
+from mapping.team.links import LinkLimits, round_limits
 from mapping.team.member import AgentStream, TeamMember, Vocabulary
-from mapping.team.messages import DegreeMessage, MessageRules, ParameterMessage, RayMessage
+from mapping.team.messages import DegreeMessage, MessageRules, ParameterMessage, RayMessage, to_bytes
 from mapping.team.report import (AgentSnapshot, AlignmentCounts, ConsistencyTerms, DeliveryRecord, LossTerms,
                                  RoundReport)
 from mapping.team.state import member_state, restore_member
@@ -46,10 +47,13 @@ class PlanError(ValueError):
 
 @dataclass
 class RoundPlan:
-    """Who sends what to whom this round: two (N, N) bool matrices, diagonal False."""
+    """Who sends what to whom this round: two (N, N) bool matrices, diagonal False, and optionally which
+    instances: ``send_instances[(i, j)]`` the ids of i's own instances its parameter message to j carries (a
+    link without an entry carries every shareable one, an empty selection sends nothing)."""
 
     send_params: np.ndarray
     share_rays: np.ndarray
+    send_instances: dict[tuple[int, int], tuple[int, ...]] | None = None
 
     @staticmethod
     def always(n: int) -> "RoundPlan":
@@ -74,23 +78,45 @@ class RoundPlan:
             if np.any(np.diag(m)):
                 raise PlanError(f"plan.{name} has self-links (diagonal entries {np.flatnonzero(np.diag(m)).tolist()})")
             out.append(m.copy())
-        return RoundPlan(*out)
+        chosen = None
+        if self.send_instances is not None:
+            chosen = {}
+            for key, ids in dict(self.send_instances).items():
+                if not (isinstance(key, tuple) and len(key) == 2 and all(isinstance(k, (int, np.integer)) for k in key)
+                        and 0 <= key[0] < n and 0 <= key[1] < n and key[0] != key[1]):
+                    raise PlanError(f"plan.send_instances keys are (sender, receiver) pairs of distinct agents in "
+                                    f"0..{n - 1}, got {key!r}")
+                values = np.asarray(list(ids))
+                if values.size and (values.dtype.kind not in "iu" or values.min() < 0):
+                    raise PlanError(f"plan.send_instances[{key}] must hold instance ids (integers >= 0), got "
+                                    f"{list(ids)[:5]}")
+                chosen[(int(key[0]), int(key[1]))] = tuple(int(v) for v in values)
+        return RoundPlan(*out, chosen)
 
 
 @dataclass(frozen=True)
 class ChannelConfig:
-    """The links: success probability per message and an optional budget per agent."""
+    """The links: success probability per message, an optional budget per agent, and links that come and go
+    (``mapping.team.links``: a range along the paths, a capacity per round)."""
 
     success_probability: float = 1.0
     """Chance that each message arrives (drawn per message from the team's seed)."""
     budget_mb: float | None = None
     """Megabytes each agent may send over the run (None: unlimited)."""
+    link_range_m: float | None = None
+    """A link is up only while its two agents are within this many metres (None: always up)."""
+    link_mb_per_round: float | None = None
+    """Megabytes a link carries a round; instances that do not fit wait for a later message (None: no limit)."""
 
     def __post_init__(self) -> None:
         if not 0.0 <= self.success_probability <= 1.0:
             raise ValueError(f"channel.success_probability must be in [0, 1], got {self.success_probability}")
         if self.budget_mb is not None and not self.budget_mb >= 0:
             raise ValueError(f"channel.budget_mb must be >= 0 or None, got {self.budget_mb}")
+        for name in ("link_range_m", "link_mb_per_round"):
+            value = getattr(self, name)
+            if value is not None and not (isinstance(value, (int, float)) and np.isfinite(value) and value > 0):
+                raise ValueError(f"channel.{name} must be a finite number > 0 or None (no limit), got {value!r}")
 
     @property
     def budget_bytes(self) -> float | None:
@@ -156,6 +182,7 @@ class Team:
         self.channel = Channel(len(streams), channel.success_probability, channel.budget_bytes,
                                seed=zlib.crc32(f"channel-{seed}".encode()), rules=rules)
         self.round_index = 0
+        self.positions = np.zeros((len(streams), 3))  # each agent's camera after its last frame read
 
     @property
     def num_agents(self) -> int:
@@ -187,23 +214,36 @@ class Team:
         start = time.perf_counter()
         sent0, recv0, link0 = self.channel.bytes_sent.copy(), self.channel.bytes_received.copy(), \
             self.channel.link_bytes.copy()
-        degree = plan.send_params.sum(axis=1)
+        limits = self.link_limits(reads)
+        degree = (plan.send_params & limits.up).sum(axis=1)
         params_in: dict[int, list[ParameterMessage]] = {j: [] for j in range(n)}
         rays_in: dict[int, list[RayMessage]] = {j: [] for j in range(n)}
         deliveries = []
+        room = limits.room_bytes.copy()
         for i in range(n):
             for j in range(n):
+                if not limits.up[i, j]:
+                    continue
                 messages = []
                 if plan.send_params[i, j] and self.config.exchange.point_clouds:
                     messages.append(self.members[i].point_cloud_message(j, t))
                 elif plan.send_params[i, j]:
-                    messages.append(self.members[i].parameter_message(j, t, int(degree[i])))
+                    only = None if plan.send_instances is None else plan.send_instances.get((i, j))
+                    messages.append(self.members[i].parameter_message(
+                        j, t, int(degree[i]), only, None if np.isinf(room[i, j]) else float(room[i, j])))
                 if plan.share_rays[i, j]:
-                    ray = self.members[i].ray_message(j, t, zlib.crc32(f"rays-{self.seed}-{t}-{i}-{j}".encode()))
-                    if ray is not None:
-                        messages.append(ray)
+                    messages.append(self.members[i].ray_message(j, t, zlib.crc32(f"rays-{self.seed}-{t}-{i}-{j}".encode())))
                 for message in messages:
-                    d = self.channel.transmit(message)
+                    if message is None:
+                        continue
+                    if np.isfinite(room[i, j]):  # a capacity: what does not fit is not sent (rays after parameters)
+                        data = to_bytes(message)
+                        if len(data) > room[i, j]:
+                            continue
+                        d = self.channel.transmit_bytes(message.sender, message.receiver, message.kind, data)
+                        room[i, j] -= d.bytes
+                    else:
+                        d = self.channel.transmit(message)
                     self.members[i].acknowledge(j, d.kind, d.status == DELIVERED, t)
                     deliveries.append(DeliveryRecord(i, j, d.kind, d.status, d.bytes))
                     if d.status == DELIVERED and d.kind != "points":  # clouds are counted, not learned from
@@ -264,13 +304,25 @@ class Team:
             mine = [d.status for d in deliveries if d.sender == snap.index]
             snap.messages.update({status: mine.count(status) for status in snap.messages})
             snap.bytes_sent, snap.bytes_received = int(sent[snap.index]), int(received[snap.index])
+            snap.links_up = {j: bool(limits.up[snap.index, j]) for j in range(n) if j != snap.index}
         return RoundReport(
             round=t, frames_read=[len(r.frames) for r in local], keyframes=[r.keyframes for r in local],
             bytes_per_link=self.channel.link_bytes - link0, bytes_sent=sent.tolist(), bytes_received=received.tolist(),
             delivered=statuses.count(DELIVERED), dropped=statuses.count(DROPPED),
             over_budget=statuses.count(OVER_BUDGET), deliveries=deliveries, alignment=alignment, losses=losses,
             local_s=[r.seconds for r in local], consistency_s=consistency_s, exchange_s=max(exchange_s, 0.0),
-            done=self.done, agents=snapshots)
+            done=self.done, agents=snapshots, links=limits)
+
+    def link_limits(self, reads) -> LinkLimits:
+        """This round's links from each agent's position after its round's frames (its last one when it read
+        none) and ``ChannelConfig``'s range and capacity."""
+        cfg = self.channel_config
+        if cfg.link_range_m is None and cfg.link_mb_per_round is None:
+            return LinkLimits.unlimited(self.num_agents)
+        for index, read in enumerate(reads):
+            if read[0]:
+                self.positions[index] = read[0][-1][0].pose[:3, 3]
+        return round_limits(self.positions, cfg.link_range_m, cfg.link_mb_per_round)
 
     def fleet_train(self, iterations: list[int], extras: list[ExtraLoss]) -> tuple[list[float], list[float]]:
         """Every member's iterations batched (``mapping.model.fleet.fleet_train``) in the calling thread, on the
@@ -336,7 +388,7 @@ class Team:
     def save(self, path: str | Path, extra: dict | None = None) -> Path:
         """The whole team after the last round (maps, keyframes, fusion, what each holds of its peers,
         the channel's counters and draws), written atomically; ``extra`` is stored beside it."""
-        return save_checkpoint(path, {"round": self.round_index, "seed": self.seed,
+        return save_checkpoint(path, {"round": self.round_index, "seed": self.seed, "positions": self.positions.tolist(),
                                       "channel": self.channel.state(), "extra": extra or {},
                                       "members": [m.state() if self.processes else member_state(m)
                                                   for m in self.members]})
@@ -354,6 +406,7 @@ class Team:
                 restore_member(member, state)
         self.channel.restore(data["channel"])
         self.round_index = data["round"]
+        self.positions = np.asarray(data.get("positions", self.positions), np.float64).reshape(self.num_agents, 3)
         return data["extra"]
 
 

@@ -1,4 +1,15 @@
-"""Env actions <-> the team's round plan (``mapping.team.RoundPlan``), with errors that name the agent."""
+"""Env actions <-> the team's round plan (``mapping.team.RoundPlan``), with errors that name the agent.
+
+Three action forms (``env.action_form``), peers always in ascending index order skipping the agent itself:
+
+- ``entries``: ``MultiBinary(2 (N - 1))``: entry k < N - 1 sends its parameters (every shareable instance) to
+  peer k, entry N - 1 + k shares its rays with peer k (DESIGN.md's action);
+- ``round``: ``MultiBinary(1)``: one decision per round, parameters and rays to every peer or to none;
+- ``instances``: ``MultiBinary((N - 1)(M + 1))``: entry k M + m sends the instance in slot m of peer k (the
+  ``instances`` observation's slots, M = ``instance_slots``), then N - 1 entries share rays with each peer.
+  Rays go per peer: a ray message is a few poses and a seed (kilobytes against 45 kB per object network),
+  so choosing them per instance would buy nothing worth an action entry.
+"""
 
 from __future__ import annotations
 
@@ -7,6 +18,8 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from mapping.team import RoundPlan
+
+ACTION_FORMS = ("entries", "round", "instances")
 
 
 class ActionError(ValueError):
@@ -18,11 +31,20 @@ def peers_of(i: int, n: int) -> list[int]:
     return [j for j in range(n) if j != i]
 
 
-def actions_to_plan(actions: Mapping[str, object], agents: Sequence[str]) -> RoundPlan:
-    """Turn ``{agent: MultiBinary(2 * (N - 1))}`` into the round's two (N, N) matrices.
+def action_size(form: str, num_agents: int, slots: int = 0) -> int:
+    """Length of one agent's MultiBinary action in ``form``."""
+    if form not in ACTION_FORMS:
+        raise ValueError(f"unknown action form {form!r}; choose one of {ACTION_FORMS}")
+    peers = num_agents - 1
+    return {"entries": 2 * peers, "round": 1, "instances": peers * (slots + 1)}[form]
 
-    Entry k < N - 1 of agent i's action: send parameters to ``peers_of(i)[k]``; entry N - 1 + k: share
-    rays with it."""
+
+def actions_to_plan(actions: Mapping[str, object], agents: Sequence[str], form: str = "entries", slots: int = 0,
+                    slot_ids: Sequence[Sequence[Sequence[int]]] | None = None) -> RoundPlan:
+    """Turn ``{agent: action}`` into the round's plan (see the module docstring for each form).
+
+    ``slot_ids[i][k]`` (the instance form): the instance ids in agent i's slots for its k-th peer, as its
+    observation showed them; a slot past the agent's instances sends nothing."""
     n = len(agents)
     if not isinstance(actions, Mapping):
         raise ActionError(f"actions must be a dict {{agent: action}} for the agents {list(agents)}, got "
@@ -33,14 +55,26 @@ def actions_to_plan(actions: Mapping[str, object], agents: Sequence[str]) -> Rou
         raise ActionError(f"actions must hold exactly the agents {list(agents)}: "
                           + (f"missing {missing}" if missing else "") + (" " if missing and unknown else "")
                           + (f"unknown {unknown}" if unknown else ""))
+    size = action_size(form, n, slots)
+    meaning = {"entries": f"MultiBinary: send parameters to each of {n - 1} peers, then share rays with each",
+               "round": "MultiBinary: one decision for the round, everything to every peer or nothing",
+               "instances": f"MultiBinary: {slots} instance slots for each of {n - 1} peers, then share rays with each"}
     send, rays = np.zeros((n, n), bool), np.zeros((n, n), bool)
+    chosen: dict[tuple[int, int], tuple[int, ...]] = {}
     for i, agent in enumerate(agents):
         a = np.asarray(actions[agent])
-        if a.shape != (2 * (n - 1),):
-            raise ActionError(f"{agent}: action must have shape ({2 * (n - 1)},) (MultiBinary: send parameters to "
-                              f"each of {n - 1} peers, then share rays with each), got {a.shape}")
+        if a.shape != (size,):
+            raise ActionError(f"{agent}: action must have shape ({size},) ({meaning[form]}), got {a.shape}")
         if not np.all(np.isin(a, (0, 1))):
             raise ActionError(f"{agent}: action entries must be 0 or 1, got {np.unique(a)[:6].tolist()}")
         for k, j in enumerate(peers_of(i, n)):
-            send[i, j], rays[i, j] = bool(a[k]), bool(a[n - 1 + k])
-    return RoundPlan(send, rays)
+            if form == "entries":
+                send[i, j], rays[i, j] = bool(a[k]), bool(a[n - 1 + k])
+            elif form == "round":
+                send[i, j] = rays[i, j] = bool(a[0])
+            else:
+                ids = list(slot_ids[i][k]) if slot_ids is not None else []
+                picked = tuple(ids[m] for m in np.flatnonzero(a[k * slots:(k + 1) * slots]) if m < len(ids))
+                send[i, j], rays[i, j] = bool(picked), bool(a[(n - 1) * slots + k])
+                chosen[(i, j)] = picked
+    return RoundPlan(send, rays, chosen if form == "instances" else None)

@@ -15,7 +15,8 @@ import numpy as np
 
 from mapping.team import AgentSnapshot
 from mapping.model.topdown import ColumnGrid, ColumnMap
-from policies.observation import AGENT_FEATURES, LINK_FEATURES, MAP_CHANNELS, age_feature
+from policies.observation import (AGENT_FEATURES, INSTANCE_FEATURES, LINK_FEATURES, LINK_STATE, MAP_CHANNELS,
+                                  SIZE_SCALE_M, age_feature)
 
 OBSERVATION_CHANNELS = MAP_CHANNELS
 DEPTH_STRIDE = 4
@@ -141,6 +142,38 @@ def comm_vector(snapshot: AgentSnapshot, num_agents: int, budget_share: float) -
     return np.clip(np.asarray(rows, np.float32), 0.0, 1.0)
 
 
+def link_rows(snapshot: AgentSnapshot, num_agents: int, capacity_bytes: float | None) -> np.ndarray:
+    """The ``links`` entry: (N - 1, ``LINK_STATE``) per peer in action order (``policies.observation``)."""
+    out = np.zeros((num_agents - 1, len(LINK_STATE)), np.float32)
+    for k, peer in enumerate(j for j in range(num_agents) if j != snapshot.index):
+        up = snapshot.links_up.get(peer, True)
+        room = 1.0 if capacity_bytes is None else capacity_bytes / max(snapshot.map_bytes, 1)
+        out[k] = (float(up), min(1.0, room) if up else 0.0)
+    return out
+
+
+def instance_rows(snapshot: AgentSnapshot, num_agents: int, slots: int, capacity_bytes: float | None) -> np.ndarray:
+    """The ``instances`` entry: (N - 1, slots, ``INSTANCE_FEATURES``), each peer's first ``slots`` instances in the
+    link's priority order (``mapping.team.report.priority_order``)."""
+    out = np.zeros((num_agents - 1, slots, len(INSTANCE_FEATURES)), np.float32)
+    rounds = snapshot.rounds
+    room = capacity_bytes if capacity_bytes is not None else max(snapshot.map_bytes, 1)
+    for k, peer in enumerate(j for j in range(num_agents) if j != snapshot.index):
+        for m, item in enumerate(snapshot.instance_links.get(peer, ())[:slots]):
+            values = {"present": 1.0, "lacks": float(item.lacks), "change": item.change,
+                      "copy_age": age_feature(rounds, item.copy_round), "shared": float(item.shared),
+                      "confidence": item.confidence, "size": item.diagonal_m / SIZE_SCALE_M,
+                      "age": age_feature(rounds, item.born_round - 1), "bytes": item.nbytes / room}
+            out[k, m] = [values[name] for name in INSTANCE_FEATURES]
+    return np.clip(out, 0.0, 1.0)
+
+
+def slot_instances(snapshot: AgentSnapshot, num_agents: int, slots: int) -> list[list[int]]:
+    """Per peer in action order, the instance ids in its ``slots`` slots (what the instance action form sends)."""
+    return [[item.instance_id for item in snapshot.instance_links.get(peer, ())[:slots]]
+            for peer in range(num_agents) if peer != snapshot.index]
+
+
 def peer_plane(grid: TopDownGrid, known: dict[int, tuple[int, np.ndarray]], step: int) -> np.ndarray:
     """``peer_poses``: 255 at each peer's last known position, fading by 32 per step of age (at least 64)."""
     plane = np.zeros((grid.size, grid.size), np.uint8)
@@ -169,8 +202,10 @@ class TeamObserver:
     ``room_lo``/``room_hi`` are the room's box (x, y, z): the extent an agent knows it maps in, which fixes
     the grid; everything else comes from the team's snapshots and each agent's own fields."""
 
-    def __init__(self, room_lo: np.ndarray, room_hi: np.ndarray, map_size: int, budget_bytes: float | None):
+    def __init__(self, room_lo: np.ndarray, room_hi: np.ndarray, map_size: int, budget_bytes: float | None,
+                 link_capacity_bytes: float | None = None, instance_slots: int = 0):
         lo, hi = np.asarray(room_lo, float), np.asarray(room_hi, float)
+        self.link_capacity_bytes, self.instance_slots = link_capacity_bytes, instance_slots
         self.grid = TopDownGrid.around(lo[:2], hi[:2], map_size)
         self.room_height = float(hi[2] - lo[2])
         self.column_grid = self.grid.column_grid(self.room_height)
@@ -190,13 +225,18 @@ class TeamObserver:
         self.columns = team.column_maps(self.column_grid)
 
     def observe(self, snapshot: AgentSnapshot) -> dict[str, np.ndarray]:
-        """The agent's ``{"map", "comm"}`` observation (``policies.observation``)."""
+        """The agent's ``{"map", "comm", "links"[, "instances"]}`` observation (``policies.observation``)."""
         boxes = [box for peer in snapshot.peers.values() for box in peer.held_object_boxes]
         known = {p: k.position for p, k in snapshot.peers.items() if k.position is not None}
         peers = peer_plane(self.grid, known, snapshot.rounds - 1)
         planes = self.observers[snapshot.index].assemble(self.columns[snapshot.index], self.room_height,
                                                          received_plane(self.grid, boxes), snapshot.position, peers)
-        return {"map": planes, "comm": comm_vector(snapshot, len(self.observers), self.budget_share(snapshot))}
+        n = len(self.observers)
+        out = {"map": planes, "comm": comm_vector(snapshot, n, self.budget_share(snapshot)),
+               "links": link_rows(snapshot, n, self.link_capacity_bytes)}
+        if self.instance_slots:
+            out["instances"] = instance_rows(snapshot, n, self.instance_slots, self.link_capacity_bytes)
+        return out
 
     def budget_share(self, snapshot: AgentSnapshot) -> float:
         """Share of the agent's byte budget left (1 without a budget)."""

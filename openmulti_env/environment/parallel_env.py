@@ -103,14 +103,14 @@ from pettingzoo.utils import parallel_to_aec, wrappers
 from mapping.perception import shared_text_encoder
 from mapping.runtime import torch_threads
 from mapping.team import Team
-from openmulti_env.environment.actions import ActionError, actions_to_plan
+from openmulti_env.environment.actions import ActionError, action_size, actions_to_plan
 from openmulti_env.environment.config import env_config, env_workers
 from openmulti_env.experiment import Experiment
 from openmulti_env.environment.render import AGENT_COLOURS, agent_tile, compose, team_panel
-from openmulti_env.environment.observation import ProbeRaster, TeamObserver
+from openmulti_env.environment.observation import ProbeRaster, TeamObserver, slot_instances
 from openmulti_env.world.cache import cached_world
 from openmulti_env.world.stream import RenderCache, world_streams, world_vocabulary
-from policies.observation import MAP_CHANNELS, comm_size
+from policies.observation import INSTANCE_FEATURES, LINK_STATE, MAP_CHANNELS, comm_size
 
 INFO_KEYS = ("completion_ratio", "completion_gain", "bytes_sent", "bytes_received", "bytes_sent_total",
              "budget_left_mb", "messages_delivered", "messages_dropped", "messages_refused", "instances",
@@ -147,10 +147,15 @@ class OpenMultiParallelEnv(ParallelEnv, EzPickle):
         self.possible_agents = [f"agent_{i}" for i in range(n)]
         self.agents: list[str] = []
         size = self.config.env.map_size
-        self._observation_space = spaces.Dict({
-            "map": spaces.Box(0, 255, (size, size, len(MAP_CHANNELS)), np.uint8),
-            "comm": spaces.Box(0.0, 1.0, (comm_size(n),), np.float32)})
-        self._action_space = spaces.MultiBinary(2 * (n - 1))
+        env_cfg = self.config.env
+        parts = {"map": spaces.Box(0, 255, (size, size, len(MAP_CHANNELS)), np.uint8),
+                 "comm": spaces.Box(0.0, 1.0, (comm_size(n),), np.float32),
+                 "links": spaces.Box(0.0, 1.0, (n - 1, len(LINK_STATE)), np.float32)}
+        self._slots = env_cfg.instance_slots if env_cfg.action_form == "instances" else 0
+        if self._slots:
+            parts["instances"] = spaces.Box(0.0, 1.0, (n - 1, self._slots, len(INSTANCE_FEATURES)), np.float32)
+        self._observation_space = spaces.Dict(parts)
+        self._action_space = spaces.MultiBinary(action_size(env_cfg.action_form, n, self._slots))
         self.state_space = spaces.Box(0, 255, (size, size, (len(MAP_CHANNELS) + 1) * n), np.uint8)
         self._episode_rng, _ = seeding.np_random(seed)
         self.world = None
@@ -219,7 +224,9 @@ class OpenMultiParallelEnv(ParallelEnv, EzPickle):
         points, normals, ids = self.world.surface.sample_points(cfg.env.probe_points, seed=self.world_seed)
         self._probe_points, self._probe_normals = points, normals
         size = np.asarray(self.world.scene.size_m, float)
-        self._observer = TeamObserver(np.zeros(3), size, cfg.env.map_size, cfg.channel.budget_bytes)
+        capacity = None if cfg.channel.link_mb_per_round is None else cfg.channel.link_mb_per_round * 1e6
+        self._observer = TeamObserver(np.zeros(3), size, cfg.env.map_size, cfg.channel.budget_bytes, capacity,
+                                      self._slots)
         self._grid = self._observer.grid
         ceiling = [inst.instance_id for inst in self.world.scene.instances if inst.category == "ceiling"]
         self._probes = ProbeRaster(self._grid, points, hidden=np.isin(ids, ceiling))
@@ -237,10 +244,11 @@ class OpenMultiParallelEnv(ParallelEnv, EzPickle):
         if self.team is None:
             raise RuntimeError("call reset() before step()")
         if not self.agents:
-            raise RuntimeError("the episode has ended (every agent is truncated); call reset() to start another")
+            raise RuntimeError("the episode has ended (every agent is terminated or truncated); call reset() to start another")
         t0 = time.perf_counter()
         try:
-            plan = actions_to_plan(actions, self.agents)
+            slot_ids = [slot_instances(s, len(self.agents), self._slots) for s in self._snapshots] if self._slots else None
+            plan = actions_to_plan(actions, self.agents, self.config.env.action_form, self._slots, slot_ids)
         except ActionError as exc:
             raise ActionError(f"{exc} (action space of each agent: {self._action_space})") from None
         report = self.team.round(plan)
@@ -261,8 +269,8 @@ class OpenMultiParallelEnv(ParallelEnv, EzPickle):
         t3 = time.perf_counter()
         infos = {a: self._info(i, report, 100.0 * gains[i]) for i, a in enumerate(self.agents)}
         ended = self.team.done or (self.config.env.horizon is not None and self.steps >= self.config.env.horizon)
-        terminations = {a: False for a in self.agents}
-        truncations = {a: bool(ended) for a in self.agents}
+        terminations = {a: bool(self.team.done) for a in self.agents}  # the paths end: the episode's real end
+        truncations = {a: bool(ended and not self.team.done) for a in self.agents}  # cut short by the horizon
         if ended:
             self.agents = []
         self.timings = {"learner_s": t1 - t0 - report.exchange_s, "exchange_s": report.exchange_s,

@@ -112,6 +112,10 @@ def check(tree: Experiment) -> Experiment:
     for path, value in (("env.comm_cost_per_mb", tree.env.comm_cost_per_mb),
                         ("env.budget_penalty", tree.env.budget_penalty)):
         need(math.isfinite(value) and value >= 0, f"{path} must be a finite number >= 0, got {value}")
+    need(tree.env.action_form in ("entries", "round", "instances"),
+         f"env.action_form must be one of ('entries', 'round', 'instances'), got {tree.env.action_form!r}")
+    need(isinstance(tree.env.instance_slots, int) and 1 <= tree.env.instance_slots <= 256,
+         f"env.instance_slots must be a whole number of slots per peer in 1..256, got {tree.env.instance_slots!r}")
     changed = tree.team.exchange.changed_only
     need(changed is None or (math.isfinite(changed) and changed >= 0),
          f"team.exchange.changed_only must be None or a finite number >= 0, got {changed}")

@@ -36,7 +36,8 @@ FLAGS: dict[str, tuple[str, Any]] = {
 }
 """Short flags of the older command line: the field each one sets and the value it sets it to."""
 SHORT_METAVARS = {"alignment": "{paper,none}", "out": "DIR", "data": "DIR", "gt_mesh": "PLY", "frames": "A:B:S",
-                  "intrinsics": "FX,FY,CX,CY", "comm_budget_mb": "MB", "changed_only": "REL", "holdout_every": "K"}
+                  "intrinsics": "FX,FY,CX,CY", "comm_budget_mb": "MB", "changed_only": "REL", "holdout_every": "K",
+                  "link_range_m": "M", "link_mb_per_round": "MB"}
 
 
 @lru_cache(maxsize=None)

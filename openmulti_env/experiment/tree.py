@@ -68,8 +68,15 @@ class EnvSettings:
 
     reward: str = "team"
     """``team``: every agent gets the team's completion gain; ``individual``: its own."""
-    comm_cost_per_mb: float = 0.0
-    """Reward cost per megabyte sent."""
+    comm_cost_per_mb: float = 0.01
+    """Reward cost per megabyte sent (0: free bytes, and ``always`` is optimal by construction). 0.01 was chosen
+    at ``rl_small``, where it puts the best fixed schedule inside the range (per agent: ``always`` 0.24,
+    ``every:3`` 0.39, ``never`` 0.14; docs/schedules.md)."""
+    action_form: str = "entries"
+    """``entries`` (per peer: parameters, rays), ``round`` (one decision per round) or ``instances`` (per peer:
+    which of ``instance_slots`` instances, then rays; ``openmulti_env.environment.actions``)."""
+    instance_slots: int = 16
+    """Slots per peer of the ``instances`` action form and observation (its instances in priority order)."""
     budget_penalty: float = 0.05
     """Reward penalty per message refused because its sender's budget was spent."""
     probe_points: int = 2000

@@ -27,9 +27,9 @@ from policies.train import TrainConfig
 RUN_SHORT = ("scene", "agents", "policy", "seed", "out", "device", "alignment", "consistency", "missing_edges",
              "no_cross_rendering", "comm_budget_mb", "float16", "changed_only", "threads", "workers", "holdout_every",
              "processes", "learner", "no_evaluation", "clip_checkpoint", "perfect_masks", "data", "kind", "gt_mesh",
-             "frames", "intrinsics", "depth_scale", "segmenter")
+             "frames", "intrinsics", "depth_scale", "segmenter", "link_range_m", "link_mb_per_round")
 """The short spellings ``openmulti run`` offers besides every ``--node.field`` (the README's)."""
-TRAIN_SHORT = ("agents", "reward", "comm_cost_per_mb", "comm_budget_mb", "horizon")
+TRAIN_SHORT = ("agents", "reward", "comm_cost_per_mb", "comm_budget_mb", "horizon", "link_range_m", "link_mb_per_round")
 """The short spellings of the env's settings ``openmulti train`` offers."""
 RUN_HELP = """Every setting of a run is one configuration tree (a preset plus these options); the run writes it
 whole as OUT/config.yaml, and `openmulti run --config OUT/config.yaml --out NEW` repeats the run. Each field

@@ -26,6 +26,7 @@ from mapping.runtime import available_cores, set_threads
 from mapping.team import AgentSnapshot, RoundPlan
 from mapping.team.global_map import global_rays_for, published_mapping, scene_frame
 from openmulti_env.environment.actions import actions_to_plan
+from openmulti_env.environment.observation import slot_instances
 from openmulti_env.environment.observation import TeamObserver
 from openmulti_env.experiment import (Experiment, checkpoint_identity, experiment, read_checkpoint_identity,
                                       resolved_team, tree_record, write_config)
@@ -82,11 +83,14 @@ def _run_scene(tree: Experiment) -> dict:
     record = SourceRecord(tree_record(tree), {"map": map_info}, described={"error_rates": asdict(errors)},
                           identity=checkpoint_identity(tree, {}), read_identity=read_checkpoint_identity)
     try:
-        observer = None
+        observer, slots = None, 0
         if begun.policy.reads_observations:
-            observer = TeamObserver((0.0, 0.0, 0.0), world.scene.size_m, tree.env.map_size, tree.channel.budget_bytes)
+            slots = tree.env.instance_slots if policy_form(begun.policy) == "instances" else 0
+            capacity = None if tree.channel.link_mb_per_round is None else tree.channel.link_mb_per_round * 1e6
+            observer = TeamObserver((0.0, 0.0, 0.0), world.scene.size_m, tree.env.map_size, tree.channel.budget_bytes,
+                                    capacity, slots)
         return run_team(source, record, run_config(tree, team, begun.workers, world.scene.name),
-                        PolicySchedule(begun.policy, observer), start=begun.start).as_json()
+                        PolicySchedule(begun.policy, observer, slots), start=begun.start).as_json()
     finally:
         world.close()
 
@@ -174,8 +178,9 @@ class PolicySchedule:
     every agent's observation (``TeamObserver``: its own frames, fields and messages; built only for
     policies that read them) and its budget left (the env's ``infos``)."""
 
-    def __init__(self, policy, observer: TeamObserver | None = None):
-        self.policy, self.observer = policy, observer
+    def __init__(self, policy, observer: TeamObserver | None = None, slots: int = 0):
+        self.policy, self.observer, self.slots = policy, observer, slots
+        self.form = policy_form(policy)
 
     def __call__(self, team, snapshots: list[AgentSnapshot]) -> RoundPlan:
         infos = {s.name: {"budget_left_mb": s.budget_left_bytes / 1e6} for s in snapshots}
@@ -186,7 +191,14 @@ class PolicySchedule:
             if team.round_index > 0:
                 self.observer.update(team, snapshots)
             observations = {s.name: self.observer.observe(s) for s in snapshots}
-        return actions_to_plan(self.policy(observations, infos, team.round_index), [s.name for s in snapshots])
+        slot_ids = [slot_instances(s, len(snapshots), self.slots) for s in snapshots] if self.slots else None
+        return actions_to_plan(self.policy(observations, infos, team.round_index), [s.name for s in snapshots],
+                               self.form, self.slots, slot_ids)
+
+
+def policy_form(policy) -> str:
+    """The action form a policy acts in (``entries`` unless it says otherwise)."""
+    return getattr(policy, "action_form", "entries")
 
 
 def map_structure(world: World, tree: Experiment) -> tuple[MappingConfig, dict]:

@@ -44,6 +44,34 @@ def _disable_multisampling(pyrender: ModuleType) -> None:
     renderer.glRenderbufferStorageMultisample = single_sample
 
 
+def _deterministic_draw_order(pyrender: ModuleType) -> None:
+    """Draw meshes and sum lights in an order fixed by the nodes' names.
+
+    pyrender keeps nodes in sets, ordered by memory address, and sorts meshes only by the distance of their
+    pose (the identity for every instance here): faces two instances share then win the depth test in a
+    different order from one process to the next, and lights add up in another floating-point order (one
+    pixel's label and a grey level of RGB changed between two envs of one seed). Sorting ties by name makes
+    a seed's frames the same in every process."""
+    from pyrender import renderer, scene  # noqa: PLC0415
+
+    if getattr(renderer.Renderer._sorted_mesh_nodes, "_openmulti_by_name", False):
+        return
+    original = renderer.Renderer._sorted_mesh_nodes
+
+    def by_name(self, scene_):
+        nodes = original(self, scene_)  # solid, then transparent, far to near
+        cam = scene_.get_pose(scene_.main_camera_node)[:3, 3]
+
+        def key(n):
+            return (n.mesh.is_transparent, -round(float(np.linalg.norm(scene_.get_pose(n)[:3, 3] - cam)), 9), n.name or "")
+        return sorted(nodes, key=key)
+
+    by_name._openmulti_by_name = True  # type: ignore[attr-defined]
+    renderer.Renderer._sorted_mesh_nodes = by_name
+    scene.Scene.light_nodes = property(lambda self: sorted(
+        self.point_light_nodes | self.spot_light_nodes | self.directional_light_nodes, key=lambda n: n.name or ""))
+
+
 def _keep_egl_display_alive() -> None:
     """Let several renderers live in one process.
 
@@ -87,6 +115,7 @@ def load_pyrender(platform: str | None = None) -> ModuleType:
     import pyrender  # noqa: PLC0415  (must follow the platform choice and the patch)
 
     _disable_multisampling(pyrender)
+    _deterministic_draw_order(pyrender)
     if wanted == "egl":
         _keep_egl_display_alive()
     _pyrender = pyrender

@@ -87,12 +87,13 @@ class RGBDSensor:
         )
         self._camera_nodes = [sc.add(self._camera, pose=np.eye(4)) for sc in (self._color_scene, self._seg_scene)]
         # A head lamp travels with the camera, plus two ceiling lights, so no face is ever black.
-        self._head_light = self._color_scene.add(pyrender.PointLight(color=np.ones(3), intensity=2.0), pose=np.eye(4))
+        self._head_light = self._color_scene.add(pyrender.PointLight(color=np.ones(3), intensity=2.0), pose=np.eye(4),
+                                                 name="light_head")
         sx, sy, sz = scene.size_m
-        for fx_ in (0.3, 0.7):
+        for number, fx_ in enumerate((0.3, 0.7)):
             pose = np.eye(4)
             pose[:3, 3] = [sx * fx_, sy * 0.5, sz - 0.2]
-            self._color_scene.add(pyrender.PointLight(color=np.ones(3), intensity=10.0), pose=pose)
+            self._color_scene.add(pyrender.PointLight(color=np.ones(3), intensity=10.0), pose=pose, name=f"light_{number}")
         # One renderer per GL scene: a renderer frees the buffers of meshes not in the scene it draws,
         # so alternating scenes on one renderer would upload the geometry again every frame.
         self._renderers = [pyrender.OffscreenRenderer(k.width, k.height) for _ in range(2)]

@@ -1,0 +1,102 @@
+"""``instance_novelty``: a scripted what-to-send schedule on the ``instances`` action form.
+
+Per peer, send the instances it lacks, those whose copy there moved by more than ``change`` (relative L2),
+and those it maps too once they moved by more than ``shared`` (parameter consistency, eq. 12, needs fresh
+copies of exactly these); nothing else. Over a link that is down nothing is sent. Rays as ``novelty``:
+``held`` (to peers that hold any of my instances), ``with_params``, ``always`` or ``never``. With a byte budget,
+stay silent while the share of the budget spent runs ahead of the share of the path walked by ``slack``.
+Settings in the name: ``instance_novelty:change=0.1,shared=0.02,rays=held,slack=0.1``.
+
+The minimum a mapping team needs is each instance's network at each peer once plus exchange where two
+agents map one instance (docs/schedules.md): this rule is that minimum, refreshed when a copy goes stale.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, fields
+from typing import Mapping
+
+import numpy as np
+
+from policies.observation import agent_feature, instance_feature, link_feature, link_state
+
+RAY_RULES = ("held", "always", "never", "with_params")
+
+
+@dataclass(frozen=True)
+class InstanceNoveltySettings:
+    """The rule's settings (``instance_novelty:name=value,...``)."""
+
+    change: float = 0.1
+    """Send an instance whose copy at the peer moved by more than this (relative L2 change)."""
+    shared: float = 0.02
+    """Send an instance the peer maps too once its copy there moved by more than this."""
+    rays: str = "held"
+    """Share rays with: ``held`` (peers holding any of my instances), ``with_params``, ``always`` or ``never``."""
+    slack: float = 0.1
+    """With a budget: stay silent while the share of budget spent exceeds the share of path walked by this."""
+
+    @staticmethod
+    def parse(text: str) -> "InstanceNoveltySettings":
+        """``""`` or ``"change=0.2,shared=0.05"``; ValueError naming a bad or unknown setting."""
+        if not text:
+            return InstanceNoveltySettings()
+        known = [f.name for f in fields(InstanceNoveltySettings)]
+        values: dict = {}
+        for item in text.split(","):
+            key, eq, value = item.partition("=")
+            if not eq or key not in known:
+                raise ValueError(f"instance_novelty settings are name=value pairs of {known}, got {item!r}")
+            try:
+                values[key] = value if key == "rays" else float(value)
+            except ValueError:
+                raise ValueError(f"instance_novelty setting {key} needs a number, got {value!r}") from None
+        settings = InstanceNoveltySettings(**values)
+        if settings.rays not in RAY_RULES:
+            raise ValueError(f"rays must be one of {RAY_RULES}, got {settings.rays!r}")
+        for name in ("change", "shared", "slack"):
+            value = getattr(settings, name)
+            if not (math.isfinite(value) and value >= 0):
+                raise ValueError(f"{name} must be a finite number >= 0, got {value}")
+        return settings
+
+    def __str__(self) -> str:
+        return ",".join(f"{f.name}={getattr(self, f.name)}" for f in fields(self))
+
+
+class InstanceNoveltyPolicy:
+    """The rule for every agent of a team (see the module docstring)."""
+
+    reads_observations = True
+    action_form = "instances"
+
+    def __init__(self, settings: InstanceNoveltySettings | None = None):
+        self.settings = settings or InstanceNoveltySettings()
+
+    def act(self, observation: Mapping[str, np.ndarray]) -> np.ndarray:
+        """One agent's ((N - 1)(M + 1),) int8 action from its observation."""
+        s = self.settings
+        present = instance_feature(observation, "present") > 0
+        lacks = instance_feature(observation, "lacks") > 0
+        change = instance_feature(observation, "change")
+        shared = instance_feature(observation, "shared") > 0
+        up = link_state(observation, "up") > 0
+        send = present & (lacks | (change > s.change) | (shared & (change > s.shared))) & up[:, None]  # (N-1, M)
+        if s.rays == "held":
+            rays = (link_feature(observation, "holds") > 0) & up
+        elif s.rays == "with_params":
+            rays = send.any(axis=1)
+        else:
+            rays = np.full(up.shape, s.rays == "always") & up
+        spent = 1.0 - float(agent_feature(observation, "budget_left"))
+        if spent > float(agent_feature(observation, "progress")) + s.slack:
+            send[:], rays[:] = False, False
+        return np.concatenate([send.reshape(-1), rays]).astype(np.int8)
+
+    def __call__(self, observations: Mapping[str, Mapping[str, np.ndarray]], infos=None,
+                 step: int = 0) -> dict[str, np.ndarray]:
+        """Actions of every agent that has an observation."""
+        if observations is None:
+            raise ValueError("instance_novelty reads observations: call it with the env's observations")
+        return {agent: self.act(obs) for agent, obs in observations.items()}
