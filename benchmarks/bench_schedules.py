@@ -22,6 +22,7 @@ import numpy as np
 
 from mapping.pipeline.records import write_json_atomic
 from openmulti_env import parallel_env
+from openmulti_env.environment.config import env_config
 from policies import make_policy
 
 
@@ -85,20 +86,24 @@ def main() -> None:
     done = {(r["setting"], r["policy"], r["seed"]) for r in rows}
     for setting in args.setting or ["rl"]:
         preset, overrides = parse_setting(setting)
-        env = parallel_env(preset=preset, **overrides)
-        n = env.config.num_agents
+        envs: dict[str, object] = {}  # one env per action form, made when a policy needs it
+        n = env_config(preset, **overrides).num_agents
         for name in args.policies:
             for seed in args.seeds:
                 if (setting, name, seed) in done:
                     continue
                 policy = HalfPolicy(name, n) if name in ("params_only", "rays_only") else make_policy(name, n, seed)
-                row = {"setting": setting, "policy": name, "seed": seed, **episode(env, policy, seed)}
+                form = getattr(policy, "action_form", "entries")
+                if form not in envs:
+                    envs[form] = parallel_env(preset=preset, **{**overrides, "action_form": form})
+                row = {"setting": setting, "policy": name, "seed": seed, **episode(envs[form], policy, seed)}
                 rows.append(row)
                 with rows_file.open("a") as f:
                     f.write(json.dumps(row) + "\n")
                 print(f"{setting:40s} {name:14s} seed {seed}: {row['completion']:.1f} % {row['mb']:.1f} MB "
                       f"{row['s_per_step']:.2f} s/step", flush=True)
-        env.close()
+        for env in envs.values():
+            env.close()
     write_json_atomic(out / "schedules.json", {"rows": rows})
     for setting in dict.fromkeys(r["setting"] for r in rows):
         print(f"\n### {setting}\n\n| policy | completion % | MB | s / step | episodes |\n|---|---|---|---|---|")

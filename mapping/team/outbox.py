@@ -19,17 +19,19 @@ from mapping.team.messages import InstancePayload, ParameterMessage, PointCloudM
 class Outbox:
     """Message building and delivery bookkeeping of a ``TeamMember``."""
 
-    def parameter_message(self, receiver: int, round_index: int, degree: int,
-                          only: Sequence[int] | None = None, max_bytes: float | None = None) -> ParameterMessage | None:
-        """This agent's instances for ``receiver``: those of ``only`` (None: every shareable one) that changed-only
+    def parameter_message(self, receiver: int, round_index: int, degree: int, only: Sequence[int] | None = None,
+                          max_bytes: float | None = None, new: bool = False) -> ParameterMessage | None:
+        """This agent's instances for ``receiver``: those of ``only`` (None: every shareable one), with ``new``
+        also those that appeared after its last snapshot (no observation showed them yet), that changed-only
         sending does not skip, clouds the first time or after they doubled; what the receiver holds is booked
         only on ``acknowledge``. ``max_bytes`` (a link's room this round) keeps the instances that fit, in
-        ``instance_priority`` order; None when not even an empty message fits or ``only`` selects nothing."""
+        ``instance_priority`` order; None when not even an empty message fits or the choice is empty."""
         ex = self.config.exchange
         sent = dict(self.sent_vectors.get(receiver, {}))
         clouds = dict(self.sent_cloud_points.get(receiver, {}))
         chosen = None if only is None else {int(i) for i in only}
-        ids = [iid for iid in self.shareable_ids() if chosen is None or iid in chosen]
+        ids = [iid for iid in self.shareable_ids()
+               if chosen is None or iid in chosen or (new and iid not in self.born_round)]
         if chosen is not None and not ids:
             return None
         payloads = []

@@ -91,8 +91,8 @@ class MemberProcess:
         self.frames.hand(first, views)
 
     def parameter_message(self, receiver: int, round_index: int, degree: int, only=None,
-                          max_bytes: float | None = None) -> bytes | None:
-        return _wire(self.member.parameter_message(receiver, round_index, degree, only, max_bytes))
+                          max_bytes: float | None = None, new: bool = False) -> bytes | None:
+        return _wire(self.member.parameter_message(receiver, round_index, degree, only, max_bytes, new))
 
     def point_cloud_message(self, receiver: int, round_index: int) -> bytes:
         return _wire(self.member.point_cloud_message(receiver, round_index))
@@ -213,9 +213,9 @@ class RemoteMember(StreamReader):
         return report
 
     def parameter_message(self, receiver: int, round_index: int, degree: int, only=None,
-                          max_bytes: float | None = None) -> Message | None:
+                          max_bytes: float | None = None, new: bool = False) -> Message | None:
         return _unwire(self._call("parameter_message", receiver, round_index, degree,
-                                  None if only is None else tuple(only), max_bytes))
+                                  None if only is None else tuple(only), max_bytes, bool(new)))
 
     def point_cloud_message(self, receiver: int, round_index: int) -> Message:
         return _unwire(self._call("point_cloud_message", receiver, round_index))

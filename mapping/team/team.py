@@ -48,12 +48,14 @@ class PlanError(ValueError):
 @dataclass
 class RoundPlan:
     """Who sends what to whom this round: two (N, N) bool matrices, diagonal False, and optionally which
-    instances: ``send_instances[(i, j)]`` the ids of i's own instances its parameter message to j carries (a
-    link without an entry carries every shareable one, an empty selection sends nothing)."""
+    instances: ``send_instances[(i, j)]`` the ids of i's instances its parameter message to j carries (None:
+    every shareable one on every link; given, a link without an entry carries none), and ``send_new[i, j]``:
+    also the instances that appeared in i's map after its last snapshot (no observation could name them)."""
 
     send_params: np.ndarray
     share_rays: np.ndarray
     send_instances: dict[tuple[int, int], tuple[int, ...]] | None = None
+    send_new: np.ndarray | None = None
 
     @staticmethod
     def always(n: int) -> "RoundPlan":
@@ -91,7 +93,13 @@ class RoundPlan:
                     raise PlanError(f"plan.send_instances[{key}] must hold instance ids (integers >= 0), got "
                                     f"{list(ids)[:5]}")
                 chosen[(int(key[0]), int(key[1]))] = tuple(int(v) for v in values)
-        return RoundPlan(*out, chosen)
+        new = None
+        if self.send_new is not None:
+            new = np.asarray(self.send_new)
+            if new.shape != (n, n) or not np.all(np.isin(new, (0, 1))):
+                raise PlanError(f"plan.send_new must be ({n}, {n}) booleans, got shape {new.shape}")
+            new = new.astype(bool) & ~np.eye(n, dtype=bool)
+        return RoundPlan(*out, chosen, new)
 
 
 @dataclass(frozen=True)
@@ -228,9 +236,10 @@ class Team:
                 if plan.send_params[i, j] and self.config.exchange.point_clouds:
                     messages.append(self.members[i].point_cloud_message(j, t))
                 elif plan.send_params[i, j]:
-                    only = None if plan.send_instances is None else plan.send_instances.get((i, j))
+                    only = None if plan.send_instances is None else plan.send_instances.get((i, j), ())
+                    new = plan.send_new is not None and bool(plan.send_new[i, j])
                     messages.append(self.members[i].parameter_message(
-                        j, t, int(degree[i]), only, None if np.isinf(room[i, j]) else float(room[i, j])))
+                        j, t, int(degree[i]), only, None if np.isinf(room[i, j]) else float(room[i, j]), new))
                 if plan.share_rays[i, j]:
                     messages.append(self.members[i].ray_message(j, t, zlib.crc32(f"rays-{self.seed}-{t}-{i}-{j}".encode())))
                 for message in messages:

@@ -5,10 +5,13 @@ Three action forms (``env.action_form``), peers always in ascending index order 
 - ``entries``: ``MultiBinary(2 (N - 1))``: entry k < N - 1 sends its parameters (every shareable instance) to
   peer k, entry N - 1 + k shares its rays with peer k (DESIGN.md's action);
 - ``round``: ``MultiBinary(1)``: one decision per round, parameters and rays to every peer or to none;
-- ``instances``: ``MultiBinary((N - 1)(M + 1))``: entry k M + m sends the instance in slot m of peer k (the
-  ``instances`` observation's slots, M = ``instance_slots``), then N - 1 entries share rays with each peer.
-  Rays go per peer: a ray message is a few poses and a seed (kilobytes against 45 kB per object network),
-  so choosing them per instance would buy nothing worth an action entry.
+- ``instances``: ``MultiBinary((N - 1)(M + 2))``: entry k M + m sends the instance in slot m of peer k (the
+  ``instances`` observation's slots, M = ``instance_slots``); then N - 1 entries "also send peer k the
+  instances that appear in this round" (the observation was made before the round's frames, so it cannot
+  name them: without this entry an instance seen first in the last round never travels, and everything
+  travels a round late); then N - 1 entries share rays with each peer. Rays go per peer: a ray message is a
+  few poses and a seed (kilobytes against 45 kB per object network), so choosing them per instance would
+  buy nothing worth an action entry.
 """
 
 from __future__ import annotations
@@ -36,7 +39,7 @@ def action_size(form: str, num_agents: int, slots: int = 0) -> int:
     if form not in ACTION_FORMS:
         raise ValueError(f"unknown action form {form!r}; choose one of {ACTION_FORMS}")
     peers = num_agents - 1
-    return {"entries": 2 * peers, "round": 1, "instances": peers * (slots + 1)}[form]
+    return {"entries": 2 * peers, "round": 1, "instances": peers * (slots + 2)}[form]
 
 
 def actions_to_plan(actions: Mapping[str, object], agents: Sequence[str], form: str = "entries", slots: int = 0,
@@ -58,8 +61,9 @@ def actions_to_plan(actions: Mapping[str, object], agents: Sequence[str], form: 
     size = action_size(form, n, slots)
     meaning = {"entries": f"MultiBinary: send parameters to each of {n - 1} peers, then share rays with each",
                "round": "MultiBinary: one decision for the round, everything to every peer or nothing",
-               "instances": f"MultiBinary: {slots} instance slots for each of {n - 1} peers, then share rays with each"}
-    send, rays = np.zeros((n, n), bool), np.zeros((n, n), bool)
+               "instances": f"MultiBinary: {slots} instance slots for each of {n - 1} peers, then send new instances "
+                            "to each, then share rays with each"}
+    send, rays, new = np.zeros((n, n), bool), np.zeros((n, n), bool), np.zeros((n, n), bool)
     chosen: dict[tuple[int, int], tuple[int, ...]] = {}
     for i, agent in enumerate(agents):
         a = np.asarray(actions[agent])
@@ -75,6 +79,9 @@ def actions_to_plan(actions: Mapping[str, object], agents: Sequence[str], form: 
             else:
                 ids = list(slot_ids[i][k]) if slot_ids is not None else []
                 picked = tuple(ids[m] for m in np.flatnonzero(a[k * slots:(k + 1) * slots]) if m < len(ids))
-                send[i, j], rays[i, j] = bool(picked), bool(a[(n - 1) * slots + k])
+                new[i, j] = bool(a[(n - 1) * slots + k])
+                send[i, j], rays[i, j] = bool(picked) or new[i, j], bool(a[(n - 1) * (slots + 1) + k])
                 chosen[(i, j)] = picked
-    return RoundPlan(send, rays, chosen if form == "instances" else None)
+    if form != "instances":
+        return RoundPlan(send, rays)
+    return RoundPlan(send, rays, chosen, new)
