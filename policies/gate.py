@@ -21,6 +21,10 @@ ACTION_FORMS = ("entries", "round")
 
 def check_action_form(form: str) -> str:
     """``form`` if it is one of ``ACTION_FORMS``; ValueError naming the known ones otherwise."""
+    if form == "instances":
+        raise ValueError("the instances action form is not trained here: `openmulti train` trains the entries and round "
+                         "forms; drive the instances form with instance_novelty, or with a trainer of your own on "
+                         "parallel_env(action_form='instances') (its observation adds the per-slot 'instances' entry)")
     if form not in ACTION_FORMS:
         raise ValueError(f"unknown action form {form!r}: use one of {', '.join(ACTION_FORMS)}")
     return form

@@ -121,7 +121,8 @@ def save_semantic_classes(path: str | Path, metrics, title: str, top: int = 20) 
 
 
 def save_round_bytes(path: str | Path, reports: list[dict], title: str = "") -> Path:
-    """Bytes each agent sent per round (stacked), and each agent's own compute seconds per round."""
+    """Bytes each agent sent per round (stacked) with the links that were up (when some went down or had a
+    capacity), and each agent's own compute seconds per round."""
     fig, (ax_bytes, ax_time) = plt.subplots(1, 2, figsize=(11, 3.8))
     if reports:
         rounds = np.arange(len(reports))
@@ -134,7 +135,17 @@ def save_round_bytes(path: str | Path, reports: list[dict], title: str = "") -> 
         for a in range(compute.shape[1]):
             ax_time.plot(rounds, compute[:, a], label=f"agent_{a}")
         ax_time.plot(rounds, [r["fleet_s"] for r in reports], "k--", label="fleet")
-        ax_bytes.legend(fontsize=7)
+        links = [r.get("links") for r in reports]
+        up = np.array([np.sum(x["up"]) if x else np.nan for x in links], np.float64)
+        limited = any(x and (any(v is not None for row in x["room_bytes"] for v in row)) for x in links)
+        n = sent.shape[1]
+        if np.any(np.isfinite(up)) and (limited or np.nanmin(up) < n * (n - 1)):
+            ax_links = ax_bytes.twinx()
+            ax_links.step(rounds, up, where="mid", color="k", lw=1.2, label="links up")
+            ax_links.set_ylim(0, n * (n - 1) + 0.5)
+            ax_links.set_ylabel(f"links up (of {n * (n - 1)})")
+            ax_links.legend(fontsize=7, loc="upper right")
+        ax_bytes.legend(fontsize=7, loc="upper left")
         ax_time.legend(fontsize=7)
     ax_bytes.set_xlabel("round")
     ax_bytes.set_ylabel("MB sent")

@@ -4,15 +4,15 @@ each can still carry (a per-round capacity), the two limits of ``ChannelConfig``
 Range, as MAANS, VMAS and MPE limit who can talk: a link is up only while its two agents' cameras are within
 ``link_range_m`` of each other (their positions at the end of the round's frames). Nothing is sent over a
 link that is down and it costs nothing. Capacity: a link carries at most ``link_mb_per_round`` a round; a
-parameter message keeps, in the sender's priority order (``instance_priority``), the instances that fit and
-leaves the rest out: they are neither sent nor charged, and since the sender books only what arrived, they
+parameter message keeps, in the sender's priority order (``Outbox.instance_priority``), each instance that still
+fits and leaves the rest out: they are neither sent nor charged, and since the sender books only what arrived, they
 lead its next message to that peer (they wait, they are not queued on their own).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Callable, Sequence
+from typing import Sequence
 
 import numpy as np
 
@@ -67,19 +67,4 @@ def closest_approach_m(paths: Sequence[np.ndarray]) -> np.ndarray:
     return out
 
 
-def largest_prefix(count: int, size_of: Callable[[int], int], room_bytes: float) -> int:
-    """The largest k in [0, count] with ``size_of(k) <= room_bytes`` (``size_of`` grows with k): a bisection,
-    so a message of many instances is serialised about log2(count) times, not count times."""
-    if size_of(count) <= room_bytes:
-        return count
-    lo, hi = 0, count  # size_of(lo) fits or lo == 0; size_of(hi) does not
-    while hi - lo > 1:
-        mid = (lo + hi) // 2
-        if size_of(mid) <= room_bytes:
-            lo = mid
-        else:
-            hi = mid
-    return lo
-
-
-__all__ = ["LinkLimits", "closest_approach_m", "largest_prefix", "links_in_range", "round_limits"]
+__all__ = ["LinkLimits", "closest_approach_m", "links_in_range", "round_limits"]
