@@ -17,7 +17,7 @@ from pathlib import Path
 import torch
 
 from policies.network import CommPolicyNetwork, NetworkConfig
-from policies.observation import AGENT_FEATURES, LINK_FEATURES, MAP_CHANNELS
+from policies.observation import AGENT_FEATURES, LINK_FEATURES, MAP_CHANNELS, OBSERVATION_VERSION
 from policies.scripted import PolicyError
 
 FORMAT = "openmulti-comm-policy"
@@ -25,7 +25,9 @@ VERSION = 1
 
 
 def observation_layout() -> dict:
-    """The observation layout of this package's env (what a policy file must have been trained on)."""
+    """The parts of the observation the policy network reads (``map`` and ``comm``), by name: a file is refused
+    when they differ. The env's observation version is recorded beside it (version 2 added ``links`` and
+    ``instances``, which this network does not read, so a version-1 file with this layout still fits)."""
     return {"map_channels": list(MAP_CHANNELS), "link_features": list(LINK_FEATURES),
             "agent_features": list(AGENT_FEATURES)}
 
@@ -57,7 +59,8 @@ def save_policy(path: str | Path, network: CommPolicyNetwork, num_agents: int, t
     _write_atomic(weights_path, blob)
     record = {"format": FORMAT, "version": VERSION, "weights": weights_path.name,
               "sha256": hashlib.sha256(blob).hexdigest(), "num_agents": num_agents,
-              "observation": observation_layout(), "architecture": network.config.as_dict(), "training": training}
+              "observation": observation_layout(), "observation_version": OBSERVATION_VERSION,
+              "architecture": network.config.as_dict(), "training": training}
     _write_atomic(json_path, (json.dumps(record, indent=2) + "\n").encode())
     return json_path
 

@@ -8,9 +8,9 @@
 | Manual Control     | No                                                                         |
 | Agents             | `agents= ['agent_0', ..., 'agent_{N-1}']`                                  |
 | Agents             | N = 2-8 (4 by default; preset `rl_tiny`: 2)                                 |
-| Action Shape       | (2(N-1),)                                                                  |
+| Action Shape       | (2(N-1),); `round` form (1,); `instances` form ((N-1)(M+2),), M slots        |
 | Action Values      | {0, 1}                                                                     |
-| Observation      | Dict: `map` (map_size, map_size, 6) uint8 + `comm` (8(N-1)+2,) float32 in [0, 1]   |
+| Observation      | Dict: `map` (S, S, 6) uint8, `comm` (8(N-1)+2,), `links` (N-1, 2) float32 in [0, 1]; `instances` (N-1, M, 9) in the instance form |
 | Map Shape          | 64x64x6 (`rl`, `fast`), 48x48x6 (`rl_tiny`), 96x96x6 (`full`)                  |
 | State Shape        | (map_size, map_size, 7N)                                                   |
 | State Values       | uint8 [0, 255]                                                             |
@@ -23,10 +23,16 @@ fuses them into its instances and trains; then the messages its action asks for 
 they never saw) and run parameter consistency (eq. 12) and Cross Rendering Supervision (eq. 13).
 
 ### Actions
-Agent i's action has 2(N-1) entries over its peers in ascending index order, skipping itself: entry
-k < N-1 is 1 to send its network parameters (per instance: vector, box, code-book entry; the first
-time also a down-sampled cloud) to peer k; entry N-1+k is 1 to share its ray directions (poses and a
-pixel seed, never depth) with peer k.
+`action_form="entries"` (the default): agent i's action has 2(N-1) entries over its peers in ascending index
+order, skipping itself: entry k < N-1 is 1 to send its network parameters (per instance: vector, box,
+code-book entry; the first time also a down-sampled cloud) to peer k; entry N-1+k is 1 to share its ray
+directions (poses and a pixel seed, never depth) with peer k. `"round"`: one entry, everything to every peer
+or nothing. `"instances"`: which instances go to which peer: per peer M = `instance_slots` entries (send the
+instance in that slot of the `instances` observation), then per peer one entry "also the instances that
+appear this round" (no observation could name them yet), then per peer one ray entry
+(`openmulti_env.environment.actions`). Over a link that is down (`link_range_m`) nothing is sent and nothing
+is paid; a link with a capacity (`link_mb_per_round`) carries what fits, in the sender's priority order, and
+the rest waits.
 
 ### Observations
 From the agent's own knowledge only: its frames, its fields and the messages it sent and received; never
@@ -41,7 +47,10 @@ its instances looked), `observed` (cells its own depth has hit),
 peer in action order what its side of the link knows (`holds`, `up_to_date`, `change` of its map since
 the peer's copy, rounds since its parameters / rays last reached the peer, since the peer's parameters
 last arrived, instances held from the peer, share of its bytes spent on the peer), then `budget_left` and
-`progress` along its path. SB3 (`MultiInputPolicy`) and TorchRL take it as it is. `state()`, for
+`progress` along its path; `links`, per peer, `up` and `room` (the share of its map a link carries in a round);
+with the instance form, `instances`: per peer and slot (its instances in the link's priority order: lacked,
+then most changed, then mapped by the peer too) `present`, `lacks`, `change`, `copy_age`, `shared`,
+`confidence`, `size`, `age`, `bytes`. SB3 (`MultiInputPolicy`) and TorchRL take it as it is. `state()`, for
 centralised critics, is every agent's `map` followed by a ground-truth plane each (the share of the cell's
 observable-surface samples its map reproduces: the reward's view, in no observation).
 
@@ -51,13 +60,15 @@ estimated each step by probing the agent's fields along the normals of fixed sur
 (`mapping.evaluate.probe`; its agreement with the mesh-based metric is measured in
 `benchmarks/bench_env.py`). `reward="team"`: every agent gets the gain of the team's completion ratio
 (the mean over agents, as the paper reports it) this step, minus `comm_cost_per_mb` x the team's
-megabytes sent / N, minus `budget_penalty` x the team's refused messages / N. `reward="individual"`:
+megabytes sent / N (0.01 per MB by default: at `rl_small` it puts the best fixed schedule inside the range,
+`always` 0.24, `every:3` 0.39, `never` 0.14 per agent; 0 makes bytes free), minus `budget_penalty` x the
+team's refused messages / N. `reward="individual"`:
 its own gain, its own megabytes and refused messages. Ratios are fractions (0-1): an episode's return
 without costs is the final completion ratio.
 
 ### Episode
-Truncation when every path is read (`rl`, `fast`: 24 steps, `rl_tiny`: 8, `demo`: 12, `full`: 20) or after `horizon` steps;
-no termination. `infos[agent]` always holds the same numeric keys: `completion_ratio` (percent),
+Termination when every path is read (`rl`, `fast`: 24 steps, `rl_tiny`: 8, `demo`: 12, `full`: 20): the
+episode's real end, so a trainer bootstraps no value past it; truncation after `horizon` steps. `infos[agent]` always holds the same numeric keys: `completion_ratio` (percent),
 `completion_gain` (percent points), `bytes_sent`, `bytes_received` (this step), `bytes_sent_total`,
 `budget_left_mb` (inf without a budget), `messages_delivered`, `messages_dropped`,
 `messages_refused` (its own messages this step), `instances`, `instances_received`, `step`.
@@ -80,13 +91,18 @@ steps of about a second), `rl_tiny` (8 steps, for tests), `tiny`, `demo`, `fast`
 the env is headless). `comm_budget_mb`: megabytes each agent may send per episode. `reward`: `team` or
 `individual`. `max_cycles`: the horizon (alias of `horizon`). `overrides`: any field of the configuration
 tree (`openmulti_env.experiment.Experiment`, the one `openmulti run` writes as `config.yaml`), by its short
-spelling (e.g. `success_probability=0.5`, `comm_cost_per_mb=0.01`, `consistency="dinno"`, `map_size=96`,
+spelling (e.g. `success_probability=0.5`, `comm_cost_per_mb=0`, `action_form="instances"`, `instance_slots=16`,
+`link_range_m=2.0`, `link_mb_per_round=0.25`, `consistency="dinno"`, `map_size=96`,
 `threads=1`, `cache_dir=...`; `openmulti_env.experiment.overrides.ALIASES`) or by its dotted path with `__`
 for the dots (`team__exchange__float16=True`). `env.config` is the episode's whole tree.
 
 ### Version History
 * v0: first release (openmulti 0.1). 2026-12-06: `map_height`, `map_decided` and the reward's completion
   estimate read only surface the agent's instances observed (docs/observed_space.md); shapes unchanged.
+  2026-12-06 (observation version 2): `links` added, `instances` and the `round` / `instances` action forms,
+  `link_range_m` / `link_mb_per_round`, 0.01 per MB by default, the paths' end is termination; `map` and
+  `comm` unchanged (the shipped policy reads only them). A seed's frames are the same in every env and
+  process (pyrender's draw and light order fixed by name; they were one pixel apart before).
 """
 
 from __future__ import annotations

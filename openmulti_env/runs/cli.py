@@ -229,10 +229,12 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("reproduce", help="the paper's experiments: Tables I and III-VI (and the semantic table)",
                        formatter_class=fmt)
     p.add_argument("--table", required=True, help="geometric, multi-vs-single, semantic, ablation, comm-failure, "
-                   "transmission, all (the paper's six), or tradeoff (completion against MB of every scripted "
-                   "policy and the learned one)")
+                   "transmission, all (the paper's six), tradeoff (completion against MB of every scripted "
+                   "policy and the learned one), or schedules (the trade-off of the instance-level and fixed "
+                   "policies in three link scenarios: unlimited, a 2 m range, 0.25 MB per link and round; "
+                   "--preset rl_small for its cheap part)")
     p.add_argument("--scenes", nargs="+", metavar="S", help="scenes of the grid (default: room0; tradeoff: room0 "
-                   "office0 room2)")
+                   "office0 room2; schedules: room1)")
     p.add_argument("--seeds", nargs="+", type=int, default=[0], metavar="K", help="seeds of the grid")
     p.add_argument("--preset", choices=PRESET_NAMES, default="fast", help="episode size of every run")
     p.add_argument("--agents", type=_agents, default=4, help="agents of the team methods (single_agent has 1)")
@@ -250,7 +252,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--free-space-only", action="store_true",
                    help="score with today's free-space culling only (skip the NICE-SLAM and unculled scores)")
     p.add_argument("--methods", nargs="+", metavar="M",
-                   help="run only these of the table's methods (tradeoff: these policies)")
+                   help="run only these of the table's methods (tradeoff, schedules: these policies)")
     p.add_argument("--success-rates", nargs="+", type=float, metavar="P",
                    help="run only the runs at these link success rates (comm-failure: 1 0.8 0.5 0.2; e.g. 0.2 "
                         "first, the column Table V's ordering is decided on)")

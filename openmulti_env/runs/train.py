@@ -114,9 +114,6 @@ def check_training_scenes(scenes: tuple[str, ...]) -> None:
                          f"{REPORTED_SCENES}; train on others (random:SEED rooms by default)")
 
 
-TRAIN_COMM_COST_PER_MB = 0.0025
-"""The reward's cost per MB when training, unless given (the env's own default is 0: ``always`` is then optimal
-by construction, and a policy learns nothing about bytes)."""
 TRAIN_PRESET = "rl_small"
 
 
@@ -139,7 +136,6 @@ def env_settings(args) -> tuple[dict, "Experiment"]:
     if getattr(args, "config", None) and getattr(args, "preset", None):
         raise ValueError("give --config FILE or --preset NAME, not both (the file's tree names its preset)")
     overrides = typed_overrides(tree_overrides(args), Experiment)
-    overrides.setdefault("env.comm_cost_per_mb", TRAIN_COMM_COST_PER_MB)
     kwargs = {k.replace(".", "__"): v for k, v in overrides.items()}
     if getattr(args, "config", None):
         base = read_config(args.config)

@@ -13,7 +13,8 @@ from pathlib import Path
 from typing import Any
 
 from openmulti_env.runs.reproduce.runner import check_scenes, run_table
-from openmulti_env.runs.reproduce.tables import TABLES, TRADEOFF, TRADEOFF_SCENES, RunSpec, table_runs
+from openmulti_env.runs.reproduce.tables import (SCHEDULE_SCENARIOS, SCHEDULE_SCENES, SCHEDULES, TABLES, TRADEOFF,
+                                                 TRADEOFF_SCENES, RunSpec, table_runs)
 from openmulti_env.runs.reproduce.tradeoff import write_tradeoff
 from openmulti_env.runs.reproduce.writers import write_table
 
@@ -38,8 +39,8 @@ def reproduce(table: str, scenes: list[str] | None, seeds: list[int], preset: st
     listing the known ones, before any run starts.
     """
     names = list(TABLES) if table == "all" else [table]
-    if not scenes:  # the paper's tables on room0; the trade-off on its three held-out scenes
-        scenes = list(TRADEOFF_SCENES) if table == TRADEOFF else ["room0"]
+    if not scenes:  # the paper's tables on room0; the trade-off and the schedules on their own scenes
+        scenes = {TRADEOFF: list(TRADEOFF_SCENES), SCHEDULES: list(SCHEDULE_SCENES)}.get(table, ["room0"])
     specs = {name: table_runs(name, scenes, seeds, agents) for name in names}  # checks the table names
     check_scenes(scenes)
     if methods is not None:
@@ -62,6 +63,11 @@ def reproduce(table: str, scenes: list[str] | None, seeds: list[int], preset: st
                  f"of wall time in all (each when it was made); this command: {time.perf_counter() - start:.0f} s.")
         if rows and name == TRADEOFF:
             write_tradeoff(out, rows, notes)
+        elif rows and name == SCHEDULES:  # one trade-off table per link scenario
+            for scenario in SCHEDULE_SCENARIOS:
+                mine = [r for r in rows if r.get("scenario") == scenario]
+                if mine:
+                    write_tradeoff(out / SCHEDULES / scenario, mine, f"Link scenario `{scenario}`. {notes}")
         elif rows:
             write_table(out, name, rows, notes)
         written[name] = rows

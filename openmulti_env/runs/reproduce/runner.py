@@ -47,7 +47,8 @@ def run_settings(spec: RunSpec, preset: str, three_cullings: bool, max_rounds: i
     mapper), so that a row made before a default changed is redone, not mixed into a new table."""
     return {"method": spec.method, "scene": spec.scene, "seed": spec.seed, "agents": spec.agents,
             "success_rate": spec.success_rate, "preset": preset, "policy": spec.policy,
-            "options": METHODS[spec.method].run_options(), "three_cullings": three_cullings, "max_rounds": max_rounds,
+            "options": {**METHODS[spec.method].run_options(), **spec.options}, "three_cullings": three_cullings,
+            "max_rounds": max_rounds,
             "defaults": library_defaults(preset), **policy_identity(spec.policy), **published_map_identity(spec.method),
             **global_init_identity(spec.method)}
 
@@ -107,7 +108,8 @@ def row_from_metrics(spec: RunSpec, metrics: dict) -> dict:
     per_round = [b / n for b in metrics["bytes_per_round"]]
     is_global = METHODS[spec.method].global_map
     row = {"method": spec.method, "scene": spec.scene, "seed": spec.seed, "agents": spec.agents,
-           "success_rate": spec.success_rate, "policy": spec.policy,
+           "success_rate": spec.success_rate, "policy": spec.schedule or spec.policy,
+           **({"scenario": spec.scenario} if spec.scenario else {}),
            "mb_total": metrics["bytes_sent_total"] / 1e6,
            **{k: v for k, v in mean.items() if k not in ("f_miou", "f_macc")},
            "f_miou": None if is_global else mean.get("f_miou"), "f_macc": None if is_global else mean.get("f_macc"),
@@ -160,7 +162,7 @@ def make_row(spec: RunSpec, job: GridJob) -> dict:
     metrics = run_fn(spec.scene, spec.agents, spec.policy, job.preset, spec.seed, job.out / "runs" / key,
                      device=job.device, threads=job.threads, progress=False, max_rounds=job.max_rounds,
                      three_cullings=job.three_cullings, plots=False,
-                     **{k: v for k, v in METHODS[spec.method].run_options().items() if k != "policy"})
+                     **{k: v for k, v in {**METHODS[spec.method].run_options(), **spec.options}.items() if k != "policy"})
     row = {**row_from_metrics(spec, metrics), "run_s": time.perf_counter() - start, "preset": job.preset}
     if not job.keep_files:
         _drop_bulky_files(job.out / "runs" / key)

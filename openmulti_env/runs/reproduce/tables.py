@@ -19,6 +19,21 @@ TRADEOFF_POLICIES = ("always", "never", "every:2", "every:3", "every:4", "rate:0
                      "novelty:change=0.05", "novelty:change=0.2", "learned")
 """The policies of the trade-off table (``learned`` only when a trained policy ships)."""
 TRADEOFF_SCENES = ("room0", "office0", "room2")
+SCHEDULES = "schedules"
+"""The headroom of schedules: the trade-off in three link scenarios, instance-level policies beside the fixed
+ones (docs/schedules.md); made at ``rl_small`` (``--preset rl_small``) on scenes never used for a choice."""
+SCHEDULE_POLICIES = ("always", "never", "every:2", "every:4", "rate:0.25", "novelty", "instance_novelty",
+                     "instance_novelty:change=0.1", "instance_novelty:change=1,after=999,final=0", "always+changed")
+"""``always+changed``: ``always`` with float16 vectors and changed-only sending at 1 % (``--float16 --changed-only
+0.01``); ``instance_novelty:change=1,after=999,final=0``: each network once, at its final state."""
+SCHEDULE_SCENARIOS = {"unlimited": (), "range": (("link_range_m", 2.0),), "bandwidth": (("link_mb_per_round", 0.25),)}
+"""Link scenarios: a range of 2 m (every pair of the presets' paths comes within 1.6 m at some frame), and a
+quarter of what ``always`` sends over a link at ``fast`` (0.25 MB a round)."""
+SCHEDULE_SCENES = ("room1",)
+"""One scene never used for a choice: 30 runs, about 100-400 s each at ``rl_small`` here (measured beside another
+run); more scenes and seeds with ``--scenes`` / ``--seeds``, on a Ray cluster with ``--ray``."""
+VARIANTS = {"always+changed": ("always", (("float16", True), ("changed_only", 0.01)))}
+"""Policy names of the schedules table that are a policy plus run options."""
 FAILURE_RATES = (1.0, 0.8, 0.5, 0.2)
 """Link success rates of Table V."""
 TUNING_SCENES = ("room0",)
@@ -38,11 +53,21 @@ class RunSpec:
     success_rate: float = 1.0
     schedule: str | None = None
     """A communication policy in place of the method's (the trade-off table)."""
+    scenario: str | None = None
+    """The link scenario of the schedules table (``SCHEDULE_SCENARIOS``)."""
+
+    @property
+    def options(self) -> dict:
+        """Run options beyond the method's: the scenario's links and the schedule's variant options."""
+        out = dict(SCHEDULE_SCENARIOS.get(self.scenario or "", ()))
+        if self.schedule in VARIANTS:
+            out.update(VARIANTS[self.schedule][1])
+        return out
 
     @property
     def policy(self) -> str:
         if self.schedule is not None:
-            return self.schedule
+            return VARIANTS[self.schedule][0] if self.schedule in VARIANTS else self.schedule
         base = METHODS[self.method].policy
         if self.success_rate >= 1.0 or base == "never":
             return base
@@ -52,7 +77,9 @@ class RunSpec:
         """The run's name on disk: every setting that changes its result."""
         rate = f"_p{round(self.success_rate * 100):03d}" if self.success_rate < 1.0 else ""
         schedule = "" if self.schedule is None else "_pol-" + self.schedule.replace("=", "").replace(",", "-")
-        key = f"{self.method}_{self.scene}_s{self.seed}_a{self.agents}{rate}{schedule}_{preset}"
+        schedule = schedule.replace("+", "-plus-")
+        scenario = "" if self.scenario in (None, "unlimited") else f"_links-{self.scenario}"
+        key = f"{self.method}_{self.scene}_s{self.seed}_a{self.agents}{rate}{schedule}{scenario}_{preset}"
         return key.replace(":", "-").replace("/", "-")
 
 
@@ -64,8 +91,11 @@ def table_runs(table: str, scenes: list[str], seeds: list[int], agents: int = 4)
         policies = [p for p in TRADEOFF_POLICIES if p != "learned" or SHIPPED.is_file()]
         return [RunSpec("openmulti", scene, seed, agents, schedule=p) for scene in scenes for seed in seeds
                 for p in policies]
+    if table == SCHEDULES:
+        return [RunSpec("openmulti", scene, seed, agents, schedule=p, scenario=scenario) for scene in scenes
+                for seed in seeds for scenario in SCHEDULE_SCENARIOS for p in SCHEDULE_POLICIES]
     if table not in TABLES:
-        raise ValueError(f"unknown table {table!r}; known tables: {', '.join(TABLES)}, all, {TRADEOFF}")
+        raise ValueError(f"unknown table {table!r}; known tables: {', '.join(TABLES)}, all, {TRADEOFF}, {SCHEDULES}")
     methods = {"geometric": (*TABLE_I_METHODS, *EQUAL_COMPUTE_METHODS),
                "multi-vs-single": ("single_agent", "openmulti"),
                "semantic": ("single", "openmulti_no_alignment", "openmulti"),
