@@ -355,3 +355,22 @@ def test_the_papers_orderings_are_weighed_over_paired_runs():
     loss = [v for v in verdicts("comm-failure", failing) if v.key == "comp_ratio"][0]
     assert loss.pairs == 2 and loss.verdict == "holds"  # openmulti loses 10 / 8.9 %, dinerf_global 50 %
     assert loss.mean == pytest.approx(50.0 - (10.0 + 100 * 8.0 / 90.0) / 2)
+
+
+def test_the_schedules_table_runs_each_policy_in_each_link_scenario_and_writes_one_tradeoff_each(tmp_path):
+    calls, options = [], []
+    fake = _fake_run(calls)
+
+    def run(scene, agents, policy, preset, seed, out, **kwargs):
+        options.append((policy, {k: v for k, v in kwargs.items() if k in ("link_range_m", "link_mb_per_round",
+                                                                         "float16", "changed_only")}))
+        return fake(scene, agents, policy, preset, seed, out, **kwargs)
+
+    written = reproduce("schedules", ["tiny"], [0], "tiny", tmp_path, run_fn=run, progress=False)
+    rows = written["schedules"]
+    assert len(rows) == len(calls) == 3 * 10 and len({r["policy"] for r in rows}) == 10
+    assert ("always", {"float16": True, "changed_only": 0.01, "link_range_m": 2.0}) in options  # always+changed
+    assert ("every:4", {"link_mb_per_round": 0.25}) in options
+    for scenario in ("unlimited", "range", "bandwidth"):
+        table = (tmp_path / "schedules" / scenario / "tradeoff.md").read_text()
+        assert f"Link scenario `{scenario}`" in table and "always+changed" in table
