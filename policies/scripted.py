@@ -79,22 +79,16 @@ def parse_policy(name: str) -> PolicySpec:
     if head == "rate" and arg:
         return PolicySpec(name, "rate", settings={"q": _number(name, arg, float, 0.0, 1.0,
                                                                 "rate:Q needs a probability Q in [0, 1]")})
-    if head == "novelty":
-        from policies.novelty import NoveltySettings  # noqa: PLC0415
-
+    if head in ("novelty", "instance_novelty"):  # observation-reading heuristics with name=value settings
+        if head == "novelty":
+            from policies.novelty import NoveltySettings as Settings  # noqa: PLC0415
+        else:
+            from policies.instance_novelty import InstanceNoveltySettings as Settings  # noqa: PLC0415
         try:
-            settings = NoveltySettings.parse(arg)
+            settings = Settings.parse(arg)
         except ValueError as exc:
             raise PolicyError(f"policy {name!r}: {exc}") from None
-        return PolicySpec(name, "novelty", settings={"novelty": settings})
-    if head == "instance_novelty":
-        from policies.instance_novelty import InstanceNoveltySettings  # noqa: PLC0415
-
-        try:
-            settings = InstanceNoveltySettings.parse(arg)
-        except ValueError as exc:
-            raise PolicyError(f"policy {name!r}: {exc}") from None
-        return PolicySpec(name, "instance_novelty", settings={"instance_novelty": settings})
+        return PolicySpec(name, head, settings={head: settings})
     base, mode = (name[:-len(":mode")], "mode") if name.endswith(":mode") else (name, "sample")
     if base == "learned":
         return PolicySpec(name, "learned", settings={"path": "learned", "act": mode})
