@@ -9,6 +9,7 @@ from mapping.team import ChannelConfig, RoundPlan
 from mapping.team.links import closest_approach_m, links_in_range, round_limits
 from mapping.team.team import PlanError
 from openmulti_env import parallel_env
+from openmulti_env.environment.observation import slot_instances
 from openmulti_env.experiment import ConfigError
 from policies import PolicyError, make_policy, parse_policy
 from policies.instance_novelty import InstanceNoveltyPolicy, InstanceNoveltySettings, last_round
@@ -94,8 +95,9 @@ def test_one_slot_sends_one_instance_and_the_rest_wait(cache):
     e.step({"agent_0": action, "agent_1": np.zeros(6, np.int8)})
     assert set(e.team.members[0].sent_vectors[1]) == {first}
     obs = e._observe(0)
-    held = obs["instances"][0, :, INSTANCE_FEATURES.index("lacks")] == 0
-    assert held.sum() == 0 or obs["comm"][LINK_FEATURES.index("holds")] > 0  # the held one left the first slots
+    assert obs["comm"][LINK_FEATURES.index("holds")] > 0  # the peer holds the one instance sent
+    assert first not in slot_instances(e._snapshots[0], 2, 4)[0]  # lacked ones come first: it left the slots
+    assert obs["instances"][0, :, INSTANCE_FEATURES.index("lacks")].sum() == 4
 
 
 def test_a_link_capacity_bounds_every_message_and_what_waits_goes_later(cache):
