@@ -39,6 +39,18 @@ def test_bad_link_limits_are_refused(bad):
         ChannelConfig(**bad)
 
 
+def test_a_success_probability_per_link(cache):
+    e = parallel_env(preset="rl_tiny", cache_dir=cache, link_success=[[1.0, 0.0], [1.0, 1.0]])
+    e.reset(seed=0)
+    for _ in range(2):
+        *_, infos = e.step({a: np.ones(2, np.int8) for a in e.agents})
+    assert infos["agent_0"]["messages_delivered"] == 0 and infos["agent_0"]["messages_dropped"] == 2
+    assert infos["agent_1"]["messages_delivered"] == 2
+    for bad, message in (([[1.0, 0.5, 1.0]] * 3, "the team has 2 agents"), ([[1.0, 2.0], [1.0, 1.0]], "probabilities")):
+        with pytest.raises(ValueError, match=message):
+            parallel_env(preset="rl_tiny", cache_dir=cache, link_success=bad)
+
+
 def test_plan_instance_choices_are_checked():
     full = ~np.eye(2, dtype=bool)
     assert RoundPlan(full, full, {(0, 1): [3, 4]}).validate(2).send_instances == {(0, 1): (3, 4)}

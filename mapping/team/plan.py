@@ -81,6 +81,9 @@ class ChannelConfig:
     """Chance that each message arrives (drawn per message from the team's seed)."""
     budget_mb: float | None = None
     """Megabytes each agent may send over the run (None: unlimited)."""
+    link_success: tuple[tuple[float, ...], ...] | None = None
+    """Per link, the chance that a message from agent i (row) to agent j (column) arrives, an N x N list (the
+    diagonal is not used); given, it replaces ``success_probability``."""
     link_range_m: float | None = None
     """A link is up only while its two agents are within this many metres (None: always up)."""
     link_mb_per_round: float | None = None
@@ -91,10 +94,25 @@ class ChannelConfig:
             raise ValueError(f"channel.success_probability must be in [0, 1], got {self.success_probability}")
         if self.budget_mb is not None and not self.budget_mb >= 0:
             raise ValueError(f"channel.budget_mb must be >= 0 or None, got {self.budget_mb}")
+        if self.link_success is not None:
+            rows = [list(row) for row in self.link_success]
+            if not rows or any(len(row) != len(rows) for row in rows) or not all(
+                    isinstance(v, (int, float)) and 0.0 <= v <= 1.0 for row in rows for v in row):
+                raise ValueError("channel.link_success must be an N x N list of probabilities in [0, 1] (row: sender, "
+                                 f"column: receiver), got {self.link_success!r}")
         for name in ("link_range_m", "link_mb_per_round"):
             value = getattr(self, name)
             if value is not None and not (isinstance(value, (int, float)) and np.isfinite(value) and value > 0):
                 raise ValueError(f"channel.{name} must be a finite number > 0 or None (no limit), got {value!r}")
+
+    def success_matrix(self, n: int) -> float | np.ndarray:
+        """The success probability of every link of a team of ``n`` (ValueError when ``link_success`` is not n x n)."""
+        if self.link_success is None:
+            return self.success_probability
+        matrix = np.asarray(self.link_success, np.float64)
+        if matrix.shape != (n, n):
+            raise ValueError(f"channel.link_success is {matrix.shape[0]} x {matrix.shape[1]}, the team has {n} agents")
+        return matrix
 
     @property
     def budget_bytes(self) -> float | None:

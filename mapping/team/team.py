@@ -96,7 +96,7 @@ class Team:
         self.channel_config = channel
         rules = MessageRules(param_counts=param_counts(config.mapping), feature_dim=vocabulary.features.shape[1],
                              observed_cell_m=config.mapping.observed_cell_m)
-        self.channel = Channel(len(streams), channel.success_probability, channel.budget_bytes,
+        self.channel = Channel(len(streams), channel.success_matrix(len(streams)), channel.budget_bytes,
                                seed=zlib.crc32(f"channel-{seed}".encode()), rules=rules)
         self.round_index = 0
         self.positions = np.zeros((len(streams), 3))  # each agent's camera after its last frame read

@@ -112,6 +112,9 @@ def check(tree: Experiment) -> Experiment:
     for path, value in (("env.comm_cost_per_mb", tree.env.comm_cost_per_mb),
                         ("env.budget_penalty", tree.env.budget_penalty)):
         need(math.isfinite(value) and value >= 0, f"{path} must be a finite number >= 0, got {value}")
+    success = tree.channel.link_success
+    need(success is None or len(success) == tree.num_agents,
+         f"channel.link_success is {len(success or ())} x {len(success or ())}, the team has {tree.num_agents} agents")
     need(tree.env.action_form in ("entries", "round", "instances"),
          f"env.action_form must be one of ('entries', 'round', 'instances'), got {tree.env.action_form!r}")
     need(isinstance(tree.env.instance_slots, int) and 1 <= tree.env.instance_slots <= 256,

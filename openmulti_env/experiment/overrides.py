@@ -36,7 +36,7 @@ ALIASES: dict[str, str] = {
     "global_form": "global_map.form", "sdf": "global_map.sdf",
     # the links
     "success_probability": "channel.success_probability", "comm_budget_mb": "channel.budget_mb",
-    "link_range_m": "channel.link_range_m", "link_mb_per_round": "channel.link_mb_per_round",
+    "link_range_m": "channel.link_range_m", "link_success": "channel.link_success", "link_mb_per_round": "channel.link_mb_per_round",
     # the env
     "reward": "env.reward", "comm_cost_per_mb": "env.comm_cost_per_mb", "action_form": "env.action_form",
     "instance_slots": "env.instance_slots", "budget_penalty": "env.budget_penalty",
