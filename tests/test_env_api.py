@@ -24,10 +24,9 @@ CONFIGS = [
     dict(preset="rl", num_agents=4, max_cycles=2),
     dict(preset="rl_tiny", num_agents=3, action_form="instances", instance_slots=4, link_mb_per_round=0.1,
          link_range_m=3.0),
-    dict(preset="rl_tiny", num_agents=2, action_form="round"),
 ]
 IDS = ["rl_tiny-2", "rl_tiny-3-individual", "rl_tiny-4-budget", "rl_tiny-6-individual-budget", "rl-4",
-       "rl_tiny-3-instances-links", "rl_tiny-2-round"]
+       "rl_tiny-3-instances-links"]
 
 
 @pytest.fixture(params=CONFIGS, ids=IDS)

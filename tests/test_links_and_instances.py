@@ -82,10 +82,10 @@ def _run(e, act):
 
 def test_every_slot_and_the_new_entry_send_what_the_entries_form_sends(cache):
     """The instance form with everything chosen is the entries form's `always`, to the byte and the map."""
-    entries = parallel_env(preset="rl_tiny", cache_dir=cache, comm_cost_per_mb=0.0)
+    entries = parallel_env(preset="rl_tiny", cache_dir=cache, comm_cost_per_mb=0.0, max_cycles=5)
     full, full_infos, _, _ = _run(entries, lambda o, s: np.ones(2, np.int8))
     e = parallel_env(preset="rl_tiny", cache_dir=cache, comm_cost_per_mb=0.0, action_form="instances",
-                     instance_slots=64)
+                     instance_slots=64, max_cycles=5)
     assert e.action_space("agent_0").shape == (66,)
     assert e.observation_space("agent_0")["instances"].shape == (1, 64, len(INSTANCE_FEATURES))
     chosen, chosen_infos, _, _ = _run(e, lambda o, s: np.ones(66, np.int8))
@@ -202,3 +202,13 @@ def test_coplanar_faces_render_the_same_in_any_insertion_order():
         images.append(seg.copy())
     renderer.delete()
     np.testing.assert_array_equal(images[0], images[1])
+
+
+def test_the_round_form_is_one_decision_for_every_peer(cache):
+    e = parallel_env(preset="rl_tiny", cache_dir=cache, num_agents=3, action_form="round", max_cycles=2)
+    assert e.action_space("agent_0").shape == (1,)
+    e.reset(seed=0)
+    e.step({"agent_0": np.ones(1, np.int8), "agent_1": np.zeros(1, np.int8), "agent_2": np.zeros(1, np.int8)})
+    report = e._last_report
+    assert report.bytes_per_link[0, 1] > 0 and report.bytes_per_link[0, 2] > 0
+    assert report.bytes_per_link[1:].sum() == 0
