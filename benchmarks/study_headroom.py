@@ -119,6 +119,10 @@ def main() -> None:
                         print(f"[headroom] {scene} seed {seed} {scenario} {policy}", flush=True)
                         subprocess.run(command(scene, seed, scenario, policy, folder), check=True)
                     row = row_of(folder, scene, seed, scenario, policy)
+                    if row is None:
+                        print(f"[headroom] {folder}/metrics.json holds no scores: run it again without "
+                              "--no-evaluation", flush=True)
+                        continue
                     rows.append(row)
                     with rows_file.open("a") as f:
                         f.write(json.dumps(row) + "\n")

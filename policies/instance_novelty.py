@@ -2,7 +2,8 @@
 
 Per peer, send the instances it lacks, those whose copy there moved by more than ``change`` (relative L2),
 and those it maps too once they moved by more than ``shared`` (parameter consistency, eq. 12, needs fresh
-copies of exactly these); nothing else. Over a link that is down nothing is sent. Rays as ``novelty``:
+copies of exactly these); nothing else. It asks regardless of the link's last state (a link that is down
+carries nothing and costs nothing, and one that comes up this round should not go unused). Rays as ``novelty``:
 ``held`` (to peers that hold any of my instances), ``with_params``, ``always`` or ``never``. With a byte budget,
 stay silent while the share of the budget spent runs ahead of the share of the path walked by ``slack``.
 Settings in the name: ``instance_novelty:change=0.03,shared=0.02,rays=held,slack=0.1,after=0,final=0.01``;
@@ -83,7 +84,7 @@ def last_round(observation: Mapping[str, np.ndarray], step: int) -> bool:
     """Whether round ``step`` reads the last frames of the agent's path: after ``step`` rounds it has read the
     share ``progress`` of it, so the path has ``step / progress`` rounds (unknown in round 0)."""
     progress = float(agent_feature(observation, "progress"))
-    return step > 0 and progress > 0 and step + 1 >= round(step / progress)
+    return step > 0 and progress > 0 and step + 1 >= math.ceil(step / progress - 1e-6)
 
 
 class InstanceNoveltyPolicy:
@@ -102,18 +103,19 @@ class InstanceNoveltyPolicy:
         lacks = instance_feature(observation, "lacks") > 0
         change = instance_feature(observation, "change")
         shared = instance_feature(observation, "shared") > 0
-        up = link_state(observation, "up") > 0
+        peers = link_state(observation, "up").shape  # (N-1,): whether a link is up is decided in the round itself
         novel = (lacks | (change > s.change)) & (step >= s.after)
-        if last_round(observation, step):
+        final = last_round(observation, step)
+        if final:
             novel |= change > s.final
-        send = present & (novel | (shared & (change > s.shared))) & up[:, None]  # (N-1, M)
+        send = present & (novel | (shared & (change > s.shared)))  # (N-1, M)
+        new = np.full(peers, step >= s.after or final)  # what appears this round: the peer lacks it by definition
         if s.rays == "held":
-            rays = (link_feature(observation, "holds") > 0) & up
+            rays = link_feature(observation, "holds") > 0
         elif s.rays == "with_params":
-            rays = send.any(axis=1) | (up & (step >= s.after))
+            rays = send.any(axis=1) | new
         else:
-            rays = np.full(up.shape, s.rays == "always") & up
-        new = up & (step >= s.after)  # what appears this round: the peer lacks it by definition
+            rays = np.full(peers, s.rays == "always")
         spent = 1.0 - float(agent_feature(observation, "budget_left"))
         if spent > float(agent_feature(observation, "progress")) + s.slack:
             send[:], new[:], rays[:] = False, False, False

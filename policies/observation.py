@@ -52,7 +52,8 @@ sends that instance. Per slot:
 - ``confidence``: its confidence (eq. 1-2);
 - ``size``: its box diagonal / ``SIZE_SCALE_M`` (at most 1);
 - ``age``: rounds since it appeared in the agent's map / ``AGE_SCALE`` (at most 1);
-- ``bytes``: its network's share of the link's room this round (1 without a limit or when it fills it).
+- ``bytes``: its network's bytes as a share of what the link carries in a round (of its whole map's network
+  bytes without a capacity limit), at most 1.
 """
 
 from __future__ import annotations

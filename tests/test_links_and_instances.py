@@ -33,7 +33,8 @@ def test_range_and_capacity_make_the_round_links():
     assert closest_approach_m(paths)[0, 1] == pytest.approx(0.5)
 
 
-@pytest.mark.parametrize("bad", [dict(link_range_m=0.0), dict(link_range_m=float("nan")), dict(link_mb_per_round=-1.0)])
+@pytest.mark.parametrize("bad", [dict(link_range_m=0.0), dict(link_range_m=float("nan")), dict(link_mb_per_round=-1.0),
+                                 dict(link_range_m=True)])
 def test_bad_link_limits_are_refused(bad):
     with pytest.raises(ValueError, match="must be a finite number > 0"):
         ChannelConfig(**bad)
@@ -46,9 +47,28 @@ def test_a_success_probability_per_link(cache):
         *_, infos = e.step({a: np.ones(2, np.int8) for a in e.agents})
     assert infos["agent_0"]["messages_delivered"] == 0 and infos["agent_0"]["messages_dropped"] == 2
     assert infos["agent_1"]["messages_delivered"] == 2
-    for bad, message in (([[1.0, 0.5, 1.0]] * 3, "the team has 2 agents"), ([[1.0, 2.0], [1.0, 1.0]], "probabilities")):
+    for bad, message in (([[1.0, 0.5, 1.0]] * 3, "the team has 2 agents"), ([[1.0, 2.0], [1.0, 1.0]], "probabilities"),
+                         ([1.0, 0.5], "channel.link_success takes a list of a list")):
         with pytest.raises(ValueError, match=message):
             parallel_env(preset="rl_tiny", cache_dir=cache, link_success=bad)
+
+
+def test_bernoulli_and_a_success_per_link_are_refused_together(cache):
+    with pytest.raises(ValueError, match="one success probability for every link"):
+        parallel_env(preset="rl_tiny", cache_dir=cache, policy="bernoulli:0.5", link_success=[[1, 1], [1, 1]])
+
+
+def test_a_resumed_team_observes_the_links_of_its_last_round(cache, tmp_path):
+    e = parallel_env(preset="rl_tiny", cache_dir=cache, link_range_m=0.01)
+    e.reset(seed=0)
+    e.step({a: np.ones(2, np.int8) for a in e.agents})
+    e.team.save(tmp_path / "team.pt")
+    before = [s.links_up for s in e.team.snapshots()]
+    assert before[0] == {1: False}
+    f = parallel_env(preset="rl_tiny", cache_dir=cache, link_range_m=0.01)
+    f.reset(seed=0)
+    f.team.load(tmp_path / "team.pt")
+    assert [s.links_up for s in f.team.snapshots()] == before
 
 
 def test_plan_instance_choices_are_checked():
@@ -160,7 +180,8 @@ def test_instance_novelty_sends_what_the_peer_lacks_what_moved_and_what_it_maps_
     obs = _observation(5, lacks=[1, 0, 0, 0], change=[1.0, 0.2, 0.05, 0.05], shared=[0, 0, 1, 0])
     action = policy.act(obs, step=1)
     assert action.tolist() == [1, 1, 1, 0, 0, 1, 1]  # 5 slots, then new instances, then rays
-    assert policy.act(_observation(5, [1], [1.0], [0], up=0.0), step=1).tolist() == [0] * 7  # the link is down
+    # a link down last round may be up this one, and a down link costs nothing: it still asks
+    assert policy.act(_observation(5, [1], [1.0], [0], up=0.0), step=1).tolist() == [1, 0, 0, 0, 0, 1, 1]
     last = _observation(5, lacks=[0, 0], change=[0.05, 0.0], shared=[0, 0], progress=0.75)
     assert last_round(last, step=3)  # 3 rounds read 3/4 of the path: the 4th is the last
     assert not last_round(_observation(5, [0], [0.0], [0], progress=0.5), step=2)

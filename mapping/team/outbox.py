@@ -25,7 +25,8 @@ class Outbox:
         also those that appeared after its last snapshot (no observation showed them yet), that changed-only
         sending does not skip, clouds the first time or after they doubled; what the receiver holds is booked
         only on ``acknowledge``. ``max_bytes`` (a link's room this round) keeps the instances that fit, in
-        ``instance_priority`` order; None when not even an empty message fits or the choice is empty."""
+        ``instance_priority`` order (lacked first, then the oldest copies: not the observation's slot order, which
+        ranks by change); None when not even an empty message fits, or a choice (``only``) keeps nothing."""
         ex = self.config.exchange
         sent = dict(self.sent_vectors.get(receiver, {}))
         clouds = dict(self.sent_cloud_points.get(receiver, {}))
@@ -57,6 +58,8 @@ class Outbox:
             payloads = self._fit(payloads, receiver, round_index, degree, max_bytes)
             if payloads is None:
                 return None
+        if chosen is not None and not payloads:  # the choice kept nothing (changed-only, capacity): send nothing
+            return None
         rounds = dict(self.sent_rounds.get(receiver, {}))
         for payload, params, points in payloads:
             sent[payload.instance_id] = params

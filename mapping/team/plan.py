@@ -95,14 +95,19 @@ class ChannelConfig:
         if self.budget_mb is not None and not self.budget_mb >= 0:
             raise ValueError(f"channel.budget_mb must be >= 0 or None, got {self.budget_mb}")
         if self.link_success is not None:
-            rows = [list(row) for row in self.link_success]
-            if not rows or any(len(row) != len(rows) for row in rows) or not all(
-                    isinstance(v, (int, float)) and 0.0 <= v <= 1.0 for row in rows for v in row):
+            try:
+                rows = [[float(v) for v in row] for row in self.link_success]
+                flags = any(isinstance(v, bool) for row in self.link_success for v in row)
+            except (TypeError, ValueError):
+                rows, flags = [], True
+            if flags or not rows or any(len(row) != len(rows) for row in rows) or not all(
+                    0.0 <= v <= 1.0 for row in rows for v in row):
                 raise ValueError("channel.link_success must be an N x N list of probabilities in [0, 1] (row: sender, "
                                  f"column: receiver), got {self.link_success!r}")
         for name in ("link_range_m", "link_mb_per_round"):
             value = getattr(self, name)
-            if value is not None and not (isinstance(value, (int, float)) and np.isfinite(value) and value > 0):
+            if value is not None and (isinstance(value, bool) or not (isinstance(value, (int, float, np.number))
+                                                                       and np.isfinite(value) and value > 0)):
                 raise ValueError(f"channel.{name} must be a finite number > 0 or None (no limit), got {value!r}")
 
     def success_matrix(self, n: int) -> float | np.ndarray:

@@ -100,6 +100,7 @@ class Team:
                                seed=zlib.crc32(f"channel-{seed}".encode()), rules=rules)
         self.round_index = 0
         self.positions = np.zeros((len(streams), 3))  # each agent's camera after its last frame read
+        self.last_links_up: np.ndarray | None = None  # (N, N) the links of the last round
 
     @property
     def num_agents(self) -> int:
@@ -185,6 +186,8 @@ class Team:
         def swap_listings() -> None:
             for member in self.members:
                 for message in member.degree_messages(t):
+                    if not limits.up[message.sender, message.receiver]:
+                        continue
                     d = self.channel.transmit(message)
                     deliveries.append(DeliveryRecord(message.sender, message.receiver, d.kind, d.status, d.bytes))
                     if d.status == DELIVERED:
@@ -217,12 +220,12 @@ class Team:
         self.round_index += 1
         statuses = [d.status for d in deliveries]
         sent, received = self.channel.bytes_sent - sent0, self.channel.bytes_received - recv0
+        self.last_links_up = limits.up.copy()
         snapshots = self.snapshots([[f for f, _ in read[0]] for read in reads])
         for snap in snapshots:
             mine = [d.status for d in deliveries if d.sender == snap.index]
             snap.messages.update({status: mine.count(status) for status in snap.messages})
             snap.bytes_sent, snap.bytes_received = int(sent[snap.index]), int(received[snap.index])
-            snap.links_up = {j: bool(limits.up[snap.index, j]) for j in range(n) if j != snap.index}
         return RoundReport(
             round=t, frames_read=[len(r.frames) for r in local], keyframes=[r.keyframes for r in local],
             bytes_per_link=self.channel.link_bytes - link0, bytes_sent=sent.tolist(), bytes_received=received.tolist(),
@@ -254,9 +257,14 @@ class Team:
     def snapshots(self, new_frames: Sequence[Sequence] | None = None) -> list[AgentSnapshot]:
         """Each agent's own knowledge now (``new_frames[i]``: the frames agent i read in the last round;
         none when not given, e.g. before the first round)."""
-        return [m.snapshot(self.round_index, new_frames[m.index] if new_frames is not None else (),
-                           self.channel.budget_left(m.index), self.channel.link_bytes[m.index])
-                for m in self.members]
+        snapshots = [m.snapshot(self.round_index, new_frames[m.index] if new_frames is not None else (),
+                                self.channel.budget_left(m.index), self.channel.link_bytes[m.index])
+                     for m in self.members]
+        if self.last_links_up is not None:  # the radio's view of the last round (every link before the first)
+            for snap in snapshots:
+                snap.links_up = {j: bool(self.last_links_up[snap.index, j])
+                                 for j in range(self.num_agents) if j != snap.index}
+        return snapshots
 
     def surface_coverage(self, points: np.ndarray, normals: np.ndarray) -> list[np.ndarray]:
         """Per agent, which surface samples its map reproduces (``mapping.evaluate.probe``): the reward's and
@@ -307,6 +315,7 @@ class Team:
         """The whole team after the last round (maps, keyframes, fusion, what each holds of its peers,
         the channel's counters and draws), written atomically; ``extra`` is stored beside it."""
         return save_checkpoint(path, {"round": self.round_index, "seed": self.seed, "positions": self.positions.tolist(),
+                                      "links_up": None if self.last_links_up is None else self.last_links_up.tolist(),
                                       "channel": self.channel.state(), "extra": extra or {},
                                       "members": [m.state() if self.processes else member_state(m)
                                                   for m in self.members]})
@@ -325,6 +334,8 @@ class Team:
         self.channel.restore(data["channel"])
         self.round_index = data["round"]
         self.positions = np.asarray(data.get("positions", self.positions), np.float64).reshape(self.num_agents, 3)
+        links = data.get("links_up")
+        self.last_links_up = None if links is None else np.asarray(links, bool).reshape(self.num_agents, self.num_agents)
         return data["extra"]
 
 

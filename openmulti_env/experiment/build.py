@@ -126,7 +126,16 @@ def check(tree: Experiment) -> Experiment:
     need(device_problem(tree.run.device) is None, f"run.device: {device_problem(tree.run.device)}")
     need(tree.channel.budget_mb is not None or not policy_needs_budget(tree.run.policy),
          "policy 'budget' needs a budget: --comm-budget-mb MB (channel.budget_mb, the megabytes each agent may send)")
+    need(tree.channel.link_success is None or policy_success(tree.run.policy) >= 1.0,
+         f"policy {tree.run.policy!r} sets one success probability for every link, channel.link_success one per "
+         "link: give one of them (e.g. --policy always with --channel.link-success)")
     return tree
+
+
+def policy_success(policy: str) -> float:
+    from policies import parse_policy  # noqa: PLC0415
+
+    return parse_policy(policy).success_probability
 
 
 def policy_needs_budget(policy: str) -> bool:

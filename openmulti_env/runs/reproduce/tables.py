@@ -78,7 +78,7 @@ class RunSpec:
         rate = f"_p{round(self.success_rate * 100):03d}" if self.success_rate < 1.0 else ""
         schedule = "" if self.schedule is None else "_pol-" + self.schedule.replace("=", "").replace(",", "-")
         schedule = schedule.replace("+", "-plus-")
-        scenario = "" if self.scenario in (None, "unlimited") else f"_links-{self.scenario}"
+        scenario = "" if self.scenario is None else f"_links-{self.scenario}"  # never a tradeoff run's key
         key = f"{self.method}_{self.scene}_s{self.seed}_a{self.agents}{rate}{schedule}{scenario}_{preset}"
         return key.replace(":", "-").replace("/", "-")
 
