@@ -78,7 +78,7 @@ def report(root: Path, rows: list[dict]) -> None:
         points = sorted((r["mb"], r["comp_ratio"], r["policy"]) for r in mine)
         ax.scatter([p[0] for p in points], [p[1] for p in points], label=scenario)
         for mb, cr, name in points:
-            ax.annotate(name.split(":")[0] if len(name) > 20 else name, (mb, cr), fontsize=6)
+            ax.annotate(name.replace("instance_novelty", "inst"), (mb, cr), fontsize=6)
         front, best = [], -1.0
         for mb, cr, _ in points:
             if cr > best:
