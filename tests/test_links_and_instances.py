@@ -132,6 +132,24 @@ def test_one_slot_sends_one_instance_and_the_rest_wait(cache):
     assert obs["instances"][0, :, INSTANCE_FEATURES.index("lacks")].sum() == 4
 
 
+def test_slot_instance_ids_name_what_each_slot_holds(cache):
+    e = parallel_env(preset="rl_tiny", cache_dir=cache, action_form="instances", instance_slots=32)
+    e.reset(seed=3)
+    e.step({a: np.zeros(e.action_space(a).shape, np.int8) for a in e.agents})
+    obs, *_ = e.step({a: np.zeros(e.action_space(a).shape, np.int8) for a in e.agents})
+    ids = e.slot_instance_ids("agent_0")
+    present = obs["agent_0"]["instances"][0, :, INSTANCE_FEATURES.index("present")] > 0
+    assert ids.shape == (1, 32) and present.any() and not present.all()
+    assert np.array_equal(ids[0] >= 0, present)  # an id where a slot holds an instance, -1 where it is empty
+    assert set(ids[0][present]) <= set(e.team.members[0].mapper.live_ids())
+    entries = parallel_env(preset="rl_tiny", cache_dir=cache)
+    entries.reset(seed=3)
+    with pytest.raises(ValueError, match="action_form='instances'"):
+        entries.slot_instance_ids("agent_0")
+    with pytest.raises(KeyError, match="unknown agent"):
+        e.slot_instance_ids("agent_9")
+
+
 def test_a_link_capacity_bounds_every_message_and_what_waits_goes_later(cache):
     e = parallel_env(preset="rl_tiny", cache_dir=cache, link_mb_per_round=0.15)
     reports, infos, terminations, truncations = _run(e, lambda o, s: np.ones(2, np.int8))

@@ -185,3 +185,42 @@ def test_the_masked_view_answers_on_the_points_device():
     points = torch.tensor([[0.5, 0.5, 0.5], [0.05, 0.05, 0.05]], device="cuda")
     out = ObservedRows(Full(), {0: _box_space()}).query(points, torch.zeros(2, dtype=torch.long, device="cuda"))
     assert out.occupancy.device.type == "cuda" and out.occupancy.tolist() == [1.0, 0.0]
+
+
+@pytest.mark.parametrize("voxel_m", [0.01, 0.02, 0.06])
+def test_meshing_only_the_reach_gives_the_faces_of_meshing_everything_then_cutting(voxel_m):
+    """``ReachSamples`` skips the samples whose faces ``observed_faces`` would drop: the kept faces are the same,
+    bit for bit, for margins under a cell (eight corners) and over one (the dilated reach)."""
+    from mapping.evaluate import extract_instance_mesh
+    from mapping.model.observed_field import ReachSamples, observed_faces
+
+    centre, radius = np.array([0.31, 0.27, 0.22]), 0.17
+
+    def occupancy(points: torch.Tensor) -> torch.Tensor:  # a ball with a bump, evaluated in float32
+        d = torch.linalg.norm(points - torch.tensor(centre, dtype=torch.float32), dim=1)
+        return torch.sigmoid(40 * (radius + 0.02 * torch.sin(25 * points[:, 0]) - d))
+
+    space = ObservedSpace.empty(0.025)
+    lo, hi = centre - 0.3, centre + 0.3
+    space.cover(lo, hi)
+    angles = np.random.default_rng(0).uniform(0, np.pi / 2, (400, 2))  # one octant of the ball seen
+    seen = centre + radius * np.stack([np.cos(angles[:, 0]) * np.sin(angles[:, 1]),
+                                       np.sin(angles[:, 0]) * np.sin(angles[:, 1]), np.cos(angles[:, 1])], 1)
+    space.mark(seen, SURFACE)
+    full = observed_faces(extract_instance_mesh(occupancy, lo, hi, voxel_size_m=voxel_m), space)
+    calls = []
+    counted = lambda pts: (calls.append(len(pts)), occupancy(pts))[1]  # noqa: E731
+    part = observed_faces(extract_instance_mesh(counted, lo, hi, voxel_size_m=voxel_m,
+                                                needed=ReachSamples(space)), space)
+    assert full is not None and part is not None and len(full.faces) > 20
+    assert np.array_equal(np.asarray(full.triangles), np.asarray(part.triangles))
+    grid = int(np.prod(np.floor((hi - lo) / voxel_m + 1e-9) + 1))
+    assert sum(calls) < 0.6 * grid  # an octant's reach: far fewer samples than the box
+
+
+def test_reach_samples_of_a_space_without_surface_need_nothing():
+    from mapping.model.observed_field import ReachSamples
+
+    space = ObservedSpace.empty(0.025)
+    space.cover(np.zeros(3), np.ones(3) * 0.2)
+    assert not ReachSamples(space)(np.random.default_rng(1).uniform(0, 0.2, (50, 3)), 0.01).any()

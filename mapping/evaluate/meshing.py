@@ -32,6 +32,11 @@ __all__ = [
 
 OccupancyFn = Callable[[torch.Tensor], torch.Tensor]
 ColorFn = Callable[[torch.Tensor], torch.Tensor]
+NeededFn = Callable[[np.ndarray, float], np.ndarray]
+"""``(n, 3) float64 world grid samples, margin_m -> (n,) bool``: the samples within ``margin_m`` (per axis) of
+where faces are kept; see ``extract_instance_mesh``'s ``needed``."""
+_MASK_CHUNK = 1 << 20
+"""Grid samples tested by ``needed`` at a time (bounds the index arrays of a 256^3 grid)."""
 
 INSTANCE_ID_PROPERTY = "instance_id"
 """Name of the per-vertex PLY property holding the instance id."""
@@ -106,11 +111,7 @@ def _grid_points(
 
     Index arithmetic is done in NumPy: int64 division in torch on CPU is about 20x slower.
     """
-    flat = np.arange(start, stop, dtype=np.int64)
-    i, rest = np.divmod(flat, shape[1] * shape[2])
-    j, k = np.divmod(rest, shape[2])
-    points = origin + voxel_m * np.stack((i, j, k), axis=-1)  # (n, 3) float64
-    return torch.from_numpy(points.astype(np.float32)).to(device)
+    return _indexed_points(origin, voxel_m, shape, np.arange(start, stop, dtype=np.int64), device)
 
 
 @torch.no_grad()
@@ -138,6 +139,37 @@ def _evaluate_in_batches(
     return out
 
 
+def _evaluate_needed(occupancy_fn: OccupancyFn, needed: NeededFn, origin: np.ndarray, voxel_m: float,
+                     shape: tuple[int, int, int], batch_points: int, device: torch.device) -> np.ndarray:
+    """(n,) float32 grid values: ``occupancy_fn`` on the samples ``needed`` keeps, 0 elsewhere."""
+    n = shape[0] * shape[1] * shape[2]
+    keep = []
+    for start in range(0, n, _MASK_CHUNK):
+        points = _grid_points(origin, voxel_m, shape, start, min(start + _MASK_CHUNK, n), torch.device("cpu"))
+        mask = np.asarray(needed(points.numpy().astype(np.float64), voxel_m), bool)
+        if mask.shape != (len(points),):
+            raise ValueError(f"needed returned shape {mask.shape} for {len(points)} samples")
+        keep.append(start + np.flatnonzero(mask))
+    index = np.concatenate(keep) if keep else np.zeros(0, np.int64)
+    values = np.zeros(n, np.float32)
+    if len(index):
+        def needed_batch(start: int, stop: int) -> torch.Tensor:
+            return _indexed_points(origin, voxel_m, shape, index[start:stop], device)
+
+        values[index] = _evaluate_in_batches(occupancy_fn, needed_batch, len(index), 1, batch_points,
+                                             "occupancy_fn").reshape(-1)
+    return values
+
+
+def _indexed_points(origin: np.ndarray, voxel_m: float, shape: tuple[int, int, int], flat: np.ndarray,
+                    device: torch.device) -> torch.Tensor:
+    """World positions of the grid samples with flat (C-order) indices ``flat``; (n, 3) float32."""
+    i, rest = np.divmod(flat, shape[1] * shape[2])
+    j, k = np.divmod(rest, shape[2])
+    points = origin + voxel_m * np.stack((i, j, k), axis=-1)  # (n, 3) float64
+    return torch.from_numpy(points.astype(np.float32)).to(device)
+
+
 def extract_instance_mesh(
     occupancy_fn: OccupancyFn,
     bound_min: object,
@@ -148,6 +180,7 @@ def extract_instance_mesh(
     batch_points: int = 65536,
     color_fn: ColorFn | None = None,
     device: torch.device | str = "cpu",
+    needed: NeededFn | None = None,
 ) -> trimesh.Trimesh | None:
     """Mesh the `level` set of an occupancy field inside an axis-aligned box.
 
@@ -169,6 +202,12 @@ def extract_instance_mesh(
       the vertices; stored as uint8 RGBA in `mesh.visual.vertex_colors`.
     device : torch device
       Where the query points are created.
+    needed : callable or None
+      For a caller that keeps only some faces afterwards (``observed_faces``): ``needed(samples, voxel)``
+      says which grid samples lie within one voxel (per axis) of a place where faces are kept. Only those
+      are evaluated; the rest read as 0. A face lies inside a grid cube, and a cube lies within one voxel of
+      each of its corners, so every face kept afterwards comes from a cube whose eight corners were all
+      evaluated: the same faces as a full evaluation gives, for the cost of the kept region only.
 
     Returns
     -------
@@ -188,7 +227,10 @@ def extract_instance_mesh(
     def grid_batch(start: int, stop: int) -> torch.Tensor:
         return _grid_points(origin, voxel_m, shape, start, stop, device)
 
-    values = _evaluate_in_batches(occupancy_fn, grid_batch, n, 1, batch_points, "occupancy_fn").reshape(-1)
+    if needed is None:
+        values = _evaluate_in_batches(occupancy_fn, grid_batch, n, 1, batch_points, "occupancy_fn").reshape(-1)
+    else:
+        values = _evaluate_needed(occupancy_fn, needed, origin, voxel_m, shape, batch_points, device)
     if not np.all(np.isfinite(values)):
         raise ValueError(f"occupancy_fn returned {np.count_nonzero(~np.isfinite(values))} non-finite values")
     if not values.max() > level:

@@ -29,7 +29,7 @@ from mapping.model.instances import ExportedInstance, InstanceFrame, InstanceSlo
 from mapping.model.optim import AdamConfig, StackedAdam
 from mapping.model.keyframes import KeyframeBuffer
 from mapping.model.losses import data_loss, free_space_loss
-from mapping.model.observed_field import ObservedRows, observed_faces
+from mapping.model.observed_field import ObservedRows, ReachSamples, observed_faces
 from mapping.model.observed_map import ObservedMaps
 from mapping.model.sdf_field import SdfBatch, SdfFieldBank, sdf_batch
 from mapping.runtime import flushed_denormals, resolve_device
@@ -312,10 +312,12 @@ class MappingAgent:
                 continue
             bank = self.banks[slot.bank]
             voxel = self.config.structure_voxel_m if slot.bank == "structure" else self.config.object_voxel_m
+            space = self.observed.get(iid)
             mesh = extract_instance_mesh(bank.occupancy_fn(slot.row), slot.bound.lo, slot.bound.hi,
                                          voxel_size_m=voxel, max_resolution=self.config.max_mesh_resolution,
-                                         color_fn=bank.colour_fn(slot.row), device=self.device)
-            if mesh is not None and (space := self.observed.get(iid)) is not None:
+                                         color_fn=bank.colour_fn(slot.row), device=self.device,
+                                         needed=None if space is None else ReachSamples(space))
+            if mesh is not None and space is not None:
                 mesh = observed_faces(mesh, space)
             if mesh is not None:
                 meshes[iid] = mesh

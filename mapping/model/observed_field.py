@@ -120,3 +120,42 @@ def observed_faces(mesh: trimesh.Trimesh, space: ObservedSpace, allowed: np.ndar
     out.update_faces(keep)
     out.remove_unreferenced_vertices()
     return out
+
+
+class ReachSamples:
+    """``extract_instance_mesh``'s ``needed`` for ``observed_faces``: the grid samples within a margin (per
+    axis) of a cell of ``space``'s surface reach, the only places whose faces are kept.
+
+    A box of half-side ``margin_m`` under one cell meets at most two cells per axis, those of its corners: the
+    sample is needed when one of its box's eight corners lies in a reach cell. A larger margin tests the
+    sample's own cell of the reach dilated by enough cells (kept per margin)."""
+
+    SLACK_M = 1e-6
+    """Added to the margin: face centres are float sums of vertices on the cube's edges (rounding ~1e-15 m)."""
+
+    def __init__(self, space: ObservedSpace):
+        self.space, self._dilated = space, {}
+
+    def __call__(self, points: np.ndarray, margin_m: float) -> np.ndarray:
+        space, reach = self.space, self.space.surface_reach()
+        out = np.zeros(len(points), bool)
+        if not reach.size or not reach.any():
+            return out
+        margin = margin_m + self.SLACK_M
+        if margin >= space.cell_m:
+            from scipy.ndimage import binary_dilation  # noqa: PLC0415
+
+            cells = int(np.ceil(margin / space.cell_m))
+            if cells not in self._dilated:
+                self._dilated[cells] = binary_dilation(reach, np.ones((3, 3, 3), bool), iterations=cells,
+                                                       border_value=0)
+            reach, corners = self._dilated[cells], [np.zeros(3)]
+        else:
+            corners = [np.array([x, y, z]) * margin for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)]
+        shape = np.array(reach.shape)
+        for corner in corners:
+            idx = space.cells_of(points + corner) - space.origin
+            inside = np.all((idx >= 0) & (idx < shape), axis=1)
+            out[inside] |= reach[tuple(idx[inside].T)]
+        return out
+

@@ -326,6 +326,22 @@ class OpenMultiParallelEnv(ParallelEnv, EzPickle):
         assert tuple(info) == INFO_KEYS
         return info
 
+    def slot_instance_ids(self, agent: str) -> np.ndarray:
+        """With ``action_form="instances"``: (N - 1, M) int64, the id of the agent's own instance each slot of its
+        observation (and action) holds now, peers in action order, -1 where a slot is empty. For analysis and
+        hindsight baselines (an instance's id is the agent's own label, not part of any observation)."""
+        self._check_agent(agent)
+        if not self._slots:
+            raise ValueError(f"slot_instance_ids needs action_form='instances' (this env's is "
+                             f"{self.config.env.action_form!r})")
+        if self.team is None:
+            raise RuntimeError("call reset() before slot_instance_ids()")
+        i = self.possible_agents.index(agent)
+        out = np.full((len(self.possible_agents) - 1, self._slots), -1, np.int64)
+        for k, ids in enumerate(slot_instances(self._snapshots[i], len(self.possible_agents), self._slots)):
+            out[k, :len(ids)] = ids
+        return out
+
     def state(self) -> np.ndarray:
         """For centralised critics: every agent's ``map`` planes, each followed by a ground-truth plane (the
         share of the cell's observable-surface samples its map reproduces, the reward's view; never in an

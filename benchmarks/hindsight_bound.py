@@ -1,0 +1,116 @@
+"""A schedule made with hindsight: what an instance-level schedule could reach if it knew the episode's end.
+
+The issue's bound: each instance's network reaches each peer once, at its final state, plus exchange every
+round only for the instances two agents map. Which instances two agents map is known only once their clouds
+have crossed (``shared`` in the observation), so a rule that holds everything back never learns it
+(``instance_novelty:after=999``). Hindsight supplies it: a first episode sends everything (``all``, the
+instance form's ``always``) and records, per agent and peer, every instance that was ever ``shared``; the
+second episode (same world, same seed) sends a peer exactly those instances each round their copy moved by more
+than ``shared`` (or the peer lacks them), rays as ``instance_novelty`` (``held``), and in the path's last round
+every instance whose copy moved at all. It is a baseline that no causal policy can run, not a proof of
+optimality: the headroom a learned schedule could find lies between the scripted front and it.
+
+    .venv/bin/python benchmarks/hindsight_bound.py --setting rl_small --rows docs/schedules/transfer/hindsight_rows.jsonl
+
+Rows (cell, policy ``all`` / ``hindsight``, final completion, MB) are appended as each episode ends; cells as
+``study_headroom.CELLS`` (never used for a choice).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_schedules import episode, parse_setting  # noqa: E402
+from study_headroom import CELLS  # noqa: E402
+
+from policies.instance_novelty import last_round  # noqa: E402
+from policies.observation import instance_feature, link_feature  # noqa: E402
+
+
+class SendAll:
+    """Every slot, every new instance, rays to every peer, every round; records which ids were ever shared."""
+
+    reads_observations, action_form = True, "instances"
+
+    def __init__(self, env):
+        self.env = env
+        self.shared: dict[str, list[set[int]]] = {}
+
+    def __call__(self, observations, infos, step):
+        actions = {}
+        for agent, obs in observations.items():
+            ids = self.env.slot_instance_ids(agent)
+            flags = instance_feature(obs, "shared") > 0
+            seen = self.shared.setdefault(agent, [set() for _ in range(ids.shape[0])])
+            for k in range(ids.shape[0]):
+                seen[k].update(int(i) for i in ids[k][flags[k] & (ids[k] >= 0)])
+            actions[agent] = np.ones(self.env.action_space(agent).shape, np.int8)
+        return actions
+
+
+class Hindsight:
+    """Shared instances (known from the first episode) every round they moved; everything once at the end."""
+
+    reads_observations, action_form = True, "instances"
+
+    def __init__(self, env, shared: dict[str, list[set[int]]], moved: float = 0.02):
+        self.env, self.shared, self.moved = env, shared, moved
+
+    def __call__(self, observations, infos, step):
+        actions = {}
+        for agent, obs in observations.items():
+            ids = self.env.slot_instance_ids(agent)
+            present = instance_feature(obs, "present") > 0
+            lacks = instance_feature(obs, "lacks") > 0
+            change = instance_feature(obs, "change")
+            known = np.array([[int(i) in self.shared.get(agent, [set()] * len(ids))[k] for i in row]
+                              for k, row in enumerate(ids)], bool)
+            send = present & known & (lacks | (change > self.moved))
+            final = last_round(obs, step)
+            if final:
+                send |= present & (lacks | (change > 0))
+            new = np.full(ids.shape[0], final)
+            rays = link_feature(obs, "holds") > 0
+            actions[agent] = np.concatenate([send.reshape(-1), new, rays]).astype(np.int8)
+        return actions
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--setting", default="rl_small", help="preset[,field=value...]")
+    parser.add_argument("--rows", default="docs/schedules/transfer/hindsight_rows.jsonl")
+    args = parser.parse_args()
+    from openmulti_env import parallel_env  # noqa: PLC0415
+
+    rows_file = Path(args.rows)
+    rows_file.parent.mkdir(parents=True, exist_ok=True)
+    done = {(r["setting"], r["scene"], r["seed"]) for r in
+            (json.loads(line) for line in (rows_file.read_text().splitlines() if rows_file.exists() else []))
+            if r["policy"] == "hindsight"}
+    preset, overrides = parse_setting(args.setting)
+    for scene, seed in CELLS:
+        if (args.setting, scene, seed) in done:
+            continue
+        env = parallel_env(preset=preset, seed=seed, **{**overrides, "scene": scene, "action_form": "instances"})
+        first = SendAll(env)
+        results = {"all": episode(env, first, seed)}
+        results["hindsight"] = episode(env, Hindsight(env, first.shared), seed)
+        env.close()
+        shared = {a: [len(s) for s in sets] for a, sets in first.shared.items()}
+        with rows_file.open("a") as f:
+            for name, result in results.items():
+                row = {"setting": args.setting, "scene": scene, "seed": seed, "policy": name, **result,
+                       "shared_per_peer": shared}
+                f.write(json.dumps(row) + "\n")
+                print(f"[hindsight] {scene} s{seed} {name}: {result['completion']:.2f} % {result['mb']:.1f} MB",
+                      flush=True)
+
+
+if __name__ == "__main__":
+    main()
