@@ -124,6 +124,15 @@ def test_directions_and_encoding_dims():
     assert torch.allclose(geometry[:, :84], exact[:, :4].flatten(1), atol=5e-5)
     assert torch.allclose(colour, exact[:, 4:].flatten(1), atol=5e-5)
     assert torch.equal(geometry[:, 84:], u / 2.0)
+    geometry_only, none = encode_positions(u, dirs, 2.0, with_colour=False)
+    assert none is None and torch.equal(geometry_only, geometry)  # the same geometry input, bit for bit
+
+
+def test_occupancy_without_colour_is_the_same_bit_for_bit():
+    bank = make_bank(5)
+    points = points_in_boxes(bank, 300)
+    with torch.no_grad():
+        assert torch.equal(bank(points).occupancy, bank(points, with_colour=False).occupancy)
 
 
 def test_batched_forward_and_gradients_match_loop():

@@ -43,7 +43,8 @@ def icosahedron_directions() -> Tensor:
     return dirs.float()
 
 
-def encode_positions(unit_coords: Tensor, directions: Tensor, scale: float) -> tuple[Tensor, Tensor]:
+def encode_positions(unit_coords: Tensor, directions: Tensor, scale: float, with_colour: bool = True
+                     ) -> tuple[Tensor, Tensor | None]:
     """vMAP's directional sine encoding, split into the geometry input and the colour-only extra.
 
     Speed on CPU (measured 1.7x faster than the direct form): sin(2^k a) for k >= 1 comes from sin a
@@ -57,10 +58,12 @@ def encode_positions(unit_coords: Tensor, directions: Tensor, scale: float) -> t
         unit_coords: (..., P, 3) box coordinates (inside the box in [-1, 1]).
         directions: (21, 3) unit projection directions.
         scale: coordinates are divided by it first (vMAP: obj_scale).
+        with_colour: False skips bands 4-5 (meshing and depth-only rendering read no colour; the geometry
+            input is the same, bit for bit, in the same buffer layout).
 
     Returns:
-        (..., P, 87) geometry input [sin bands 0-3, t] and (..., P, 42) colour extra [sin bands 4-5],
-        where t = u / scale and band k is sin(pi 2^k d_j . t).
+        (..., P, 87) geometry input [sin bands 0-3, t] and (..., P, 42) colour extra [sin bands 4-5] (None
+        without colour), where t = u / scale and band k is sin(pi 2^k d_j . t).
     """
     n_dir, n_col = N_DIRECTIONS, COLOUR_INPUT_DIM
     eye = torch.eye(3, dtype=unit_coords.dtype, device=unit_coords.device)
@@ -73,9 +76,11 @@ def encode_positions(unit_coords: Tensor, directions: Tensor, scale: float) -> t
     s = torch.sin(phase, out=features[..., rows[0] : rows[0] + n_dir, :])
     c2 = torch.cos(phase).mul_(2.0)  # 2 cos a
     two = torch.full((), 2.0, dtype=phase.dtype, device=phase.device)
-    for k in range(1, N_BANDS):
+    bands = N_BANDS if with_colour else GEOMETRY_BANDS
+    for k in range(1, bands):
         s_next = torch.mul(s, c2, out=features[..., rows[k] : rows[k] + n_dir, :])  # sin 2a = sin a * 2 cos a
-        if k + 1 < N_BANDS:
+        if k + 1 < bands:
             c2 = torch.addcmul(two, s, s, value=-4.0)  # 2 cos 2a = 2 - 4 sin^2 a
         s = s_next
-    return features[..., n_col:, :].transpose(-1, -2), features[..., :n_col, :].transpose(-1, -2)
+    colour = features[..., :n_col, :].transpose(-1, -2) if with_colour else None
+    return features[..., n_col:, :].transpose(-1, -2), colour

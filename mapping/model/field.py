@@ -211,7 +211,7 @@ class InstanceFieldBank(nn.Module):
         """The MLP on (n, P, 3) frame coordinates with (n, D) rows: occupancy (or its logit) and colour.
 
         Public for ``instance_frames.refit_frames``, which evaluates rows in frames they do not hold."""
-        geometry, colour_in = encode_positions(unit, self.directions, self.config.encoding_scale)
+        geometry, colour_in = encode_positions(unit, self.directions, self.config.encoding_scale, with_colour)
         return batched_mlp(self.split_params(params), geometry, colour_in, self.config.hidden_width,
                            self.config.occupancy_sharpness, with_colour, logits)
 
