@@ -24,7 +24,7 @@ from mapping.evaluate.visibility import cull_to_viewpoints
 from openmulti_env.experiment.files import read_config
 from openmulti_env.world.world import World
 
-VARIANTS = ((0.02, 1), (0.03, 1), (0.04, 1), (0.02, 2), (0.03, 2))
+VARIANTS = ((0.02, 1), (0.02, 2), (0.02, 3), (0.02, 4), (0.03, 1))
 """(group_m, every): the default first."""
 
 
