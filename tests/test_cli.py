@@ -128,3 +128,19 @@ def test_run_without_evaluation_prints_what_the_rounds_cost(capsys, tmp_path):
     assert "6 rounds;" in printed and "Not evaluated" in printed and "comp ratio" not in printed
     assert (tmp_path / "map" / "checkpoints" / "team.pt").is_file()
     assert not (tmp_path / "map" / "meshes").exists()
+
+
+def test_fewer_culling_viewpoints_score_the_same_maps_from_a_subset(tmp_path):
+    """``--run.culling-viewpoint-stride K`` culls each map to what every K-th free-space viewpoint sees: the
+    same checkpoint scored from one viewpoint keeps no more of the map than from all of them."""
+    import json
+
+    out = tmp_path / "map"
+    base = ["run", "--scene", "tiny", "--agents", "2", "--preset", "tiny", "--policy", "always", "--out", str(out),
+            "--device", "cpu", "--run.max-rounds", "2", "--run.plots", "false"]
+    assert main(base) == 0
+    every = json.loads((out / "metrics.json").read_text())["mean"]
+    assert main(base + ["--run.culling-viewpoint-stride", "100000"]) == 0  # only the first viewpoint
+    one = json.loads((out / "metrics.json").read_text())
+    assert one["config"]["run"]["culling_viewpoint_stride"] == 100000
+    assert one["mean"]["comp_ratio"] < every["comp_ratio"]

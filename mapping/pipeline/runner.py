@@ -68,6 +68,8 @@ class RunConfig:
     """Stop after this many rounds (None: when the streams end)."""
     three_cullings: bool = False
     """Also score NICE-SLAM-culled (where the source has the cameras) and unculled."""
+    culling_viewpoint_stride: int = 1
+    """Maps are culled to what every this-many-th of the ground truth's viewpoints sees (1: all)."""
     plots: bool = True
     evaluate: bool = True
     """False: map only (rounds, bytes, the final checkpoint); the same command again with it scores the maps
@@ -191,7 +193,7 @@ def evaluate_team(source: Source, record: SourceRecord, gt: GroundTruth, team: T
                                                    source.image_encoder, record.caption,
                                                    frames=source.agent_frames(member.index, DEPTH_CHECK_EVERY),
                                                    heldout=heldout_frames(source, member.index, config.team),
-                                                   reference=reference)
+                                                   reference=reference, viewpoint_stride=config.culling_viewpoint_stride)
         maps.append(own)
         if config.plots:
             save_rendered_views(out / "plots" / f"rendered_views_{member.name}.png", source, member,

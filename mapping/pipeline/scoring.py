@@ -96,10 +96,10 @@ def score_culled(meshes: dict[str, trimesh.Trimesh | None], gt: trimesh.Trimesh,
 def score_member(member: TeamMember, gt: GroundTruth, views: CameraViews | None, seed: int, out: Path,
                  encoder, image_encoder, caption: Callable[[int, str], str] | None = None,
                  frames: Sequence[Frame] = (), heldout: Sequence[Frame] = (),
-                 reference: SampledSurface | None = None) -> tuple[dict, MemberMap]:
+                 reference: SampledSurface | None = None, viewpoint_stride: int = 1) -> tuple[dict, MemberMap]:
     """Mesh one member's own map (``out/meshes/<name>.ply``), label its code book against the ground
     truth's categories (``out/codebook/<name>``; ``caption(id, caption)`` renames the captions written),
-    score it (``score_three_ways``), where the ground truth has categories its F-mIoU / F-mAcc, and against
+    score it (``score_three_ways``; culled to every ``viewpoint_stride``-th viewpoint), where the ground truth has categories its F-mIoU / F-mAcc, and against
     the sensor depth of ``frames`` (its own input frames: ``depth_check``) and of ``heldout`` (frames kept
     out of its map: ``TeamConfig.holdout_every``; the ``depth_heldout_*`` keys only when given)."""
     name, mapper = member.name, member.mapper
@@ -111,7 +111,7 @@ def score_member(member: TeamMember, gt: GroundTruth, views: CameraViews | None,
         export_scene_mesh(out / "meshes" / f"{name}.ply", mesh, ids)
     labelled(book, labels, caption).save(out / "codebook", name)
     semantic = None if gt.semantic is None else semantic_metrics(*gt.semantic, np.asarray(mesh.vertices), ids, labels)
-    culled = cull_three_ways(mesh if has_mesh else None, gt.viewpoints, views)
+    culled = cull_three_ways(mesh if has_mesh else None, gt.viewpoints[::viewpoint_stride], views)
     scores = score_culled(culled, gt.mesh, seed, reference)
     adopted = sum(1 for i in mapper.live_ids() if not mapper.keyframes.has_pixels(i))
     check = depth_check(mesh if has_mesh else None, frames, stride=DEPTH_CHECK_STRIDE)

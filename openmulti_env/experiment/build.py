@@ -98,6 +98,9 @@ def check(tree: Experiment) -> Experiment:
     need(tree.env.map_size >= 8, f"env.map_size must be at least 8 pixels, got {tree.env.map_size}")
     need(tree.run.processes in PROCESS_MODES, f"run.processes must be None or 'ray', got {tree.run.processes!r}")
     need(tree.run.learner in LEARNERS, f"run.learner must be one of {LEARNERS}, got {tree.run.learner!r}")
+    need(isinstance(tree.run.culling_viewpoint_stride, int) and tree.run.culling_viewpoint_stride >= 1,
+         f"run.culling_viewpoint_stride must be a whole number >= 1 (1: every viewpoint), "
+         f"got {tree.run.culling_viewpoint_stride!r}")
     need(not (tree.run.learner == "fleet" and tree.run.processes),
          "run.learner='fleet' batches agents in this process: not with run.processes")
     need(tree.run.workers is None or tree.run.workers >= 1, f"run.workers must be >= 1, got {tree.run.workers}")

@@ -47,7 +47,7 @@ ALIASES: dict[str, str] = {
     "policy": "run.policy", "out": "run.out", "device": "run.device", "threads": "run.threads",
     "workers": "run.workers", "agent_workers": "run.workers", "processes": "run.processes",
     "agent_processes": "run.processes", "learner": "run.learner", "checkpoint_every": "run.checkpoint_every",
-    "max_rounds": "run.max_rounds", "three_cullings": "run.three_cullings", "plots": "run.plots",
+    "max_rounds": "run.max_rounds", "three_cullings": "run.three_cullings", "culling_viewpoint_stride": "run.culling_viewpoint_stride", "plots": "run.plots",
     "evaluate": "run.evaluate", "progress": "run.progress",
     # a data set
     "data": "data.path", "kind": "data.kind", "gt_mesh": "data.gt_mesh", "frames": "data.frames",

@@ -128,6 +128,7 @@ def run_config(tree: Experiment, team, workers: int, name: str) -> RunConfig:
     job = tree.run
     return RunConfig(out, team, tree.channel, seed=tree.seed, device=job.device, workers=workers, threads=job.threads,
                      checkpoint_every=job.checkpoint_every, max_rounds=job.max_rounds, three_cullings=job.three_cullings,
+                     culling_viewpoint_stride=job.culling_viewpoint_stride,
                      plots=job.plots, progress=job.progress, processes=job.processes, learner=job.learner,
                      evaluate=job.evaluate, title=f"{name}: policy {job.policy}")
 
