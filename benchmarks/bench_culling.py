@@ -59,7 +59,7 @@ def main() -> None:
                 if base_faces is None:
                     base_faces = faces
                 differ = len(faces ^ base_faces) / max(len(mesh.faces), 1)
-                row = dict(run=run.name, agent=k, group_m=group_m, every=every, seconds=seconds,
+                row = dict(run=str(run), agent=k, group_m=group_m, every=every, seconds=seconds,
                            faces_differ_pct=100 * differ, comp_ratio=m.comp_ratio, acc_cm=m.acc_cm)
                 rows.append(row)
                 print(f"{run} agent_{k} group {group_m} every {every}: {seconds:.1f} s, {100 * differ:.2f} % faces "
