@@ -4,7 +4,8 @@ The issue's bound: each instance's network reaches each peer once, at its final 
 round only for the instances two agents map. Which instances two agents map is known only once their clouds
 have crossed (``shared`` in the observation), so a rule that holds everything back never learns it
 (``instance_novelty:after=999``). Hindsight supplies it: a first episode sends everything (``all``, the
-instance form's ``always``) and records, per agent and peer, every instance that was ever ``shared``; the
+instance form's ``always``) and records, per agent and peer, where every instance that was ever ``shared``
+lies (its box centre: ids differ between episodes); the
 second episode (same world, same seed) sends a peer exactly those instances each round their copy moved by more
 than ``shared`` (or the peer lacks them), rays as ``instance_novelty`` (``held``), and in the path's last round
 every instance whose copy moved at all. It is a baseline that no causal policy can run, not a proof of
@@ -33,23 +34,40 @@ from policies.instance_novelty import last_round  # noqa: E402
 from policies.observation import instance_feature, link_feature  # noqa: E402
 
 
+MATCH_M = 0.15
+"""Two episodes' instances are the same object when their box centres lie this close: ids cannot be compared
+across episodes (own and adopted instances draw them from one counter, and adoption differs)."""
+
+
+def box_centres(env, agent: str, ids: np.ndarray) -> np.ndarray:
+    """(..., 3) box centres of the agent's instances ``ids`` (NaN where an id is -1)."""
+    slots = env.team.members[env.possible_agents.index(agent)].mapper.slots
+    out = np.full(ids.shape + (3,), np.nan)
+    for index in zip(*np.nonzero(ids >= 0)):
+        bound = slots[int(ids[index])].bound
+        out[index] = (np.asarray(bound.lo) + np.asarray(bound.hi)) / 2
+    return out
+
+
 class SendAll:
-    """Every slot, every new instance, rays to every peer, every round; records which ids were ever shared."""
+    """Every slot, every new instance, rays to every peer, every round; records the box centres of the
+    instances that were ever shared, per agent and peer."""
 
     reads_observations, action_form = True, "instances"
 
     def __init__(self, env):
         self.env = env
-        self.shared: dict[str, list[set[int]]] = {}
+        self.shared: dict[str, list[list[np.ndarray]]] = {}
 
     def __call__(self, observations, infos, step):
         actions = {}
         for agent, obs in observations.items():
             ids = self.env.slot_instance_ids(agent)
-            flags = instance_feature(obs, "shared") > 0
-            seen = self.shared.setdefault(agent, [set() for _ in range(ids.shape[0])])
+            flags = (instance_feature(obs, "shared") > 0) & (ids >= 0)
+            centres = box_centres(self.env, agent, ids)
+            seen = self.shared.setdefault(agent, [[] for _ in range(ids.shape[0])])
             for k in range(ids.shape[0]):
-                seen[k].update(int(i) for i in ids[k][flags[k] & (ids[k] >= 0)])
+                seen[k].extend(centres[k][flags[k]])
             actions[agent] = np.ones(self.env.action_space(agent).shape, np.int8)
         return actions
 
@@ -59,8 +77,9 @@ class Hindsight:
 
     reads_observations, action_form = True, "instances"
 
-    def __init__(self, env, shared: dict[str, list[set[int]]], moved: float = 0.02):
-        self.env, self.shared, self.moved = env, shared, moved
+    def __init__(self, env, shared: dict[str, list[list[np.ndarray]]], moved: float = 0.02):
+        self.env, self.moved = env, moved
+        self.shared = {a: [np.asarray(c).reshape(-1, 3) for c in per_peer] for a, per_peer in shared.items()}
 
     def __call__(self, observations, infos, step):
         actions = {}
@@ -69,8 +88,12 @@ class Hindsight:
             present = instance_feature(obs, "present") > 0
             lacks = instance_feature(obs, "lacks") > 0
             change = instance_feature(obs, "change")
-            known = np.array([[int(i) in self.shared.get(agent, [set()] * len(ids))[k] for i in row]
-                              for k, row in enumerate(ids)], bool)
+            centres = box_centres(self.env, agent, ids)  # (N-1, M, 3)
+            known = np.zeros(ids.shape, bool)
+            for k, recorded in enumerate(self.shared.get(agent, [])):
+                if len(recorded):
+                    gap = np.linalg.norm(centres[k][:, None, :] - recorded[None], axis=-1)  # (M, R), NaN: empty
+                    known[k] = np.nan_to_num(gap, nan=np.inf).min(axis=1) < MATCH_M
             send = present & known & (lacks | (change > self.moved))
             final = last_round(obs, step)
             if final:
@@ -102,7 +125,8 @@ def main() -> None:
         results = {"all": episode(env, first, seed)}
         results["hindsight"] = episode(env, Hindsight(env, first.shared), seed)
         env.close()
-        shared = {a: [len(s) for s in sets] for a, sets in first.shared.items()}
+        shared = {a: [len({tuple(np.round(c, 2)) for c in centres}) for centres in per_peer]
+                  for a, per_peer in first.shared.items()}
         with rows_file.open("a") as f:
             for name, result in results.items():
                 row = {"setting": args.setting, "scene": scene, "seed": seed, "policy": name, **result,

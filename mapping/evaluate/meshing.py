@@ -32,11 +32,9 @@ __all__ = [
 
 OccupancyFn = Callable[[torch.Tensor], torch.Tensor]
 ColorFn = Callable[[torch.Tensor], torch.Tensor]
-NeededFn = Callable[[np.ndarray, float], np.ndarray]
-"""``(n, 3) float64 world grid samples, margin_m -> (n,) bool``: the samples within ``margin_m`` (per axis) of
-where faces are kept; see ``extract_instance_mesh``'s ``needed``."""
-_MASK_CHUNK = 1 << 20
-"""Grid samples tested by ``needed`` at a time (bounds the index arrays of a 256^3 grid)."""
+NeededFn = Callable[[np.ndarray, float, tuple[int, int, int]], np.ndarray]
+"""``(origin, voxel_m, shape) -> (X, Y, Z) bool`` over the grid ``origin + voxel_m * (i, j, k)``: the samples
+within one voxel (per axis) of where faces are kept; see ``extract_instance_mesh``'s ``needed``."""
 
 INSTANCE_ID_PROPERTY = "instance_id"
 """Name of the per-vertex PLY property holding the instance id."""
@@ -142,16 +140,11 @@ def _evaluate_in_batches(
 def _evaluate_needed(occupancy_fn: OccupancyFn, needed: NeededFn, origin: np.ndarray, voxel_m: float,
                      shape: tuple[int, int, int], batch_points: int, device: torch.device) -> np.ndarray:
     """(n,) float32 grid values: ``occupancy_fn`` on the samples ``needed`` keeps, 0 elsewhere."""
-    n = shape[0] * shape[1] * shape[2]
-    keep = []
-    for start in range(0, n, _MASK_CHUNK):
-        points = _grid_points(origin, voxel_m, shape, start, min(start + _MASK_CHUNK, n), torch.device("cpu"))
-        mask = np.asarray(needed(points.numpy().astype(np.float64), voxel_m), bool)
-        if mask.shape != (len(points),):
-            raise ValueError(f"needed returned shape {mask.shape} for {len(points)} samples")
-        keep.append(start + np.flatnonzero(mask))
-    index = np.concatenate(keep) if keep else np.zeros(0, np.int64)
-    values = np.zeros(n, np.float32)
+    mask = np.asarray(needed(origin, voxel_m, shape), bool)
+    if mask.shape != tuple(shape):
+        raise ValueError(f"needed returned shape {mask.shape} for a grid of {tuple(shape)}")
+    index = np.flatnonzero(mask)
+    values = np.zeros(mask.size, np.float32)
     if len(index):
         def needed_batch(start: int, stop: int) -> torch.Tensor:
             return _indexed_points(origin, voxel_m, shape, index[start:stop], device)
@@ -203,8 +196,8 @@ def extract_instance_mesh(
     device : torch device
       Where the query points are created.
     needed : callable or None
-      For a caller that keeps only some faces afterwards (``observed_faces``): ``needed(samples, voxel)``
-      says which grid samples lie within one voxel (per axis) of a place where faces are kept. Only those
+      For a caller that keeps only some faces afterwards (``observed_faces``): ``needed(origin, voxel,
+      shape)`` says which grid samples lie within one voxel (per axis) of a place where faces are kept. Only those
       are evaluated; the rest read as 0. A face lies inside a grid cube, and a cube lies within one voxel of
       each of its corners, so every face kept afterwards comes from a cube whose eight corners were all
       evaluated: the same faces as a full evaluation gives, for the cost of the kept region only.

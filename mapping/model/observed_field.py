@@ -123,39 +123,34 @@ def observed_faces(mesh: trimesh.Trimesh, space: ObservedSpace, allowed: np.ndar
 
 
 class ReachSamples:
-    """``extract_instance_mesh``'s ``needed`` for ``observed_faces``: the grid samples within a margin (per
-    axis) of a cell of ``space``'s surface reach, the only places whose faces are kept.
+    """``extract_instance_mesh``'s ``needed`` for ``observed_faces``: which samples of a meshing grid lie within
+    a margin (per axis) of a cell of ``space``'s surface reach, the only places whose faces are kept.
 
-    A box of half-side ``margin_m`` under one cell meets at most two cells per axis, those of its corners: the
-    sample is needed when one of its box's eight corners lies in a reach cell. A larger margin tests the
-    sample's own cell of the reach dilated by enough cells (kept per margin)."""
+    The box of half-side ``margin`` around a sample meets, per axis, the cells from that of ``x - margin`` to
+    that of ``x + margin``; the box meets a reach cell when the reach, OR-ed over those ranges axis by axis
+    (the box is a product of intervals), is true. Cells outside the space's grid are not reach."""
 
     SLACK_M = 1e-6
-    """Added to the margin: face centres are float sums of vertices on the cube's edges (rounding ~1e-15 m)."""
+    """Added to the margin: face centres are float sums of vertices on the cube's edges, and the grid samples
+    are float32 (rounding ~1e-7 m at room scale)."""
 
     def __init__(self, space: ObservedSpace):
-        self.space, self._dilated = space, {}
+        self.space = space
 
-    def __call__(self, points: np.ndarray, margin_m: float) -> np.ndarray:
-        space, reach = self.space, self.space.surface_reach()
-        out = np.zeros(len(points), bool)
+    def __call__(self, origin: np.ndarray, voxel_m: float, shape: tuple[int, int, int]) -> np.ndarray:
+        """(X, Y, Z) bool over the grid of samples ``origin + voxel_m * (i, j, k)``, margin one voxel."""
+        reach = self.space.surface_reach()
         if not reach.size or not reach.any():
-            return out
-        margin = margin_m + self.SLACK_M
-        if margin >= space.cell_m:
-            from scipy.ndimage import binary_dilation  # noqa: PLC0415
-
-            cells = int(np.ceil(margin / space.cell_m))
-            if cells not in self._dilated:
-                self._dilated[cells] = binary_dilation(reach, np.ones((3, 3, 3), bool), iterations=cells,
-                                                       border_value=0)
-            reach, corners = self._dilated[cells], [np.zeros(3)]
-        else:
-            corners = [np.array([x, y, z]) * margin for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)]
-        shape = np.array(reach.shape)
-        for corner in corners:
-            idx = space.cells_of(points + corner) - space.origin
-            inside = np.all((idx >= 0) & (idx < shape), axis=1)
-            out[inside] |= reach[tuple(idx[inside].T)]
+            return np.zeros(shape, bool)
+        margin, cell = voxel_m + self.SLACK_M, self.space.cell_m
+        out = np.pad(reach, 1, constant_values=False)  # index 0 and -1: every cell outside the grid
+        for axis in range(3):
+            coords = origin[axis] + voxel_m * np.arange(shape[axis])
+            first = np.floor((coords - margin) / cell).astype(np.int64) - self.space.origin[axis] + 1
+            last = np.floor((coords + margin) / cell).astype(np.int64) - self.space.origin[axis] + 1
+            first, last = np.clip(first, 0, out.shape[axis] - 1), np.clip(last, 0, out.shape[axis] - 1)
+            ored = np.zeros(out.shape[:axis] + (shape[axis],) + out.shape[axis + 1:], bool)
+            for step in range(int((last - first).max()) + 1):
+                ored |= np.take(out, np.minimum(first + step, last), axis=axis)
+            out = ored
         return out
-
