@@ -90,6 +90,23 @@ def test_a_run_record_of_the_version_before_the_tree_reads_as_the_same_run():
     assert read_checkpoint_identity({**old, "segmentation_errors": False}) != {**checkpoint_identity(tree, {}), "team": team}
 
 
+def test_a_record_written_before_a_neutral_setting_existed_still_resumes():
+    """A record of this version that lacks a ``neutral_default`` setting (``channel.link_success``, added after
+    runs were recorded) reads as the same run; one lacking any other setting is not trusted."""
+    tree = experiment("tiny", scene="tiny", agents=2, policy="always")
+    team = as_record(asdict(resolved_team(tree, tree.team.mapping)))
+    now = {**checkpoint_identity(tree, {}), "team": team}
+    before = json.loads(json.dumps(now))
+    del before["experiment"]["channel"]["link_success"]
+    assert before != now and read_checkpoint_identity(before) == now
+    lacking_other = json.loads(json.dumps(before))
+    del lacking_other["experiment"]["channel"]["success_probability"]
+    assert read_checkpoint_identity(lacking_other) is None
+    other_seed = json.loads(json.dumps(before))
+    other_seed["experiment"]["seed"] = 7
+    assert read_checkpoint_identity(other_seed) != now
+
+
 def test_a_run_replays_from_its_config_file(tmp_path, capsys):
     first, second = tmp_path / "first", tmp_path / "second"
     args = ["run", "--preset", "rl_tiny", "--scene", "tiny", "--agents", "2", "--out", str(first), "--no-evaluation",

@@ -67,6 +67,38 @@ def settings_record(config) -> dict:
     return as_record(strip(config))
 
 
+def neutral_default_paths(config, prefix: tuple[str, ...] = ()) -> set[tuple[str, ...]]:
+    """The key paths of a dataclass config's ``neutral_default`` fields that hold their default (nested
+    dataclasses too): the settings a record written before they existed may lack and still mean the same."""
+    paths: set[tuple[str, ...]] = set()
+    for f in dataclasses.fields(config):
+        value = getattr(config, f.name)
+        if f.metadata.get("neutral_default") and value == f.default:
+            paths.add(prefix + (f.name,))
+        elif dataclasses.is_dataclass(value):
+            paths |= neutral_default_paths(value, prefix + (f.name,))
+    return paths
+
+
+def missing_paths(old: dict, new: dict, prefix: tuple[str, ...] = ()) -> set[tuple[str, ...]] | None:
+    """The key paths ``new`` has and ``old`` lacks, when the two agree everywhere else (None when a value
+    differs or ``old`` has a key ``new`` lacks)."""
+    if set(old) - set(new):
+        return None
+    paths: set[tuple[str, ...]] = set()
+    for key, value in new.items():
+        if key not in old:
+            paths.add(prefix + (key,))
+        elif isinstance(value, dict) and isinstance(old[key], dict):
+            inner = missing_paths(old[key], value, prefix + (key,))
+            if inner is None:
+                return None
+            paths |= inner
+        elif old[key] != value:
+            return None
+    return paths
+
+
 def plain(value):
     """Config dicts for JSON (tuples and frozensets as lists)."""
     if isinstance(value, dict):

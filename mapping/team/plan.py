@@ -6,9 +6,11 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
+
+from mapping.config_fields import NEUTRAL_DEFAULT
 
 
 class PlanError(ValueError):
@@ -81,7 +83,7 @@ class ChannelConfig:
     """Chance that each message arrives (drawn per message from the team's seed)."""
     budget_mb: float | None = None
     """Megabytes each agent may send over the run (None: unlimited)."""
-    link_success: tuple[tuple[float, ...], ...] | None = None
+    link_success: tuple[tuple[float, ...], ...] | None = field(default=None, metadata=NEUTRAL_DEFAULT)
     """Per link, the chance that a message from agent i (row) to agent j (column) arrives, an N x N list (the
     diagonal is not used); given, it replaces ``success_probability``."""
     link_range_m: float | None = None

@@ -12,7 +12,7 @@ from typing import Any
 
 import yaml
 
-from mapping.pipeline.records import as_record
+from mapping.pipeline.records import as_record, missing_paths, neutral_default_paths
 from openmulti_env.experiment.overrides import ConfigError, from_mapping
 from openmulti_env.experiment.tree import Experiment
 
@@ -130,7 +130,7 @@ def read_checkpoint_identity(record: dict) -> dict | None:
     """A record of ``checkpoints/run_settings.json`` as ``checkpoint_identity`` gives it, whichever version
     wrote it (None when it cannot be read: the checkpoints are then not trusted)."""
     if record.get("format") == FORMAT:
-        return None  # this version's records are compared as written; another version's are not trusted
+        return _with_neutral_defaults(record)
     try:
         tree = _from_version0(record)
     except (ConfigError, ValueError):
@@ -139,3 +139,20 @@ def read_checkpoint_identity(record: dict) -> dict | None:
         return None
     tree = replace(tree, run=replace(tree.run, policy=record.get("policy", tree.run.policy)))
     return {**checkpoint_identity(tree, source_facts(record)), "team": record["team"]}
+
+
+def _with_neutral_defaults(record: dict) -> dict | None:
+    """A record of this version written before some ``neutral_default`` settings existed, with them filled in
+    at their defaults (the behaviour from before they existed); None when it lacks any other setting."""
+    experiment_record = record.get("experiment")
+    if record.get("version") != VERSION or not isinstance(experiment_record, dict) or "team" not in record:
+        return None
+    try:
+        tree = from_mapping(Experiment, experiment_record)
+    except ConfigError:
+        return None
+    filled = {**checkpoint_identity(tree, record.get("source", {})), "team": record["team"]}
+    lacking = missing_paths(experiment_record, filled["experiment"])
+    if lacking is None or not lacking <= neutral_default_paths(tree):
+        return None
+    return filled
