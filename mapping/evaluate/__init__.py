@@ -11,7 +11,7 @@ from importlib import import_module
 _WHERE = {
     "geometry": ("COMPLETION_RATIO_THRESHOLD_M", "GeometricMetrics", "accuracy_completion", "empty_metrics",
                  "evaluate_mesh", "evaluate_per_instance", "sample_points", "SampledSurface"),
-    "meshing": ("INSTANCE_ID_PROPERTY", "export_scene_mesh", "extract_instance_mesh", "grid_for_bound",
+    "meshing": ("INSTANCE_ID_PROPERTY", "colour_vertices", "export_scene_mesh", "extract_instance_mesh", "grid_for_bound",
                 "instance_color", "load_scene_mesh", "merge_instance_meshes"),
     "retrieval": ("RetrievalHit", "score_instances"),
     "semantic": ("ClassRow", "SemanticMetrics", "ground_truth_semantic_points", "per_class_table",

@@ -22,6 +22,7 @@ from skimage.measure import marching_cubes
 
 __all__ = [
     "INSTANCE_ID_PROPERTY",
+    "colour_vertices",
     "export_scene_mesh",
     "extract_instance_mesh",
     "grid_for_bound",
@@ -237,12 +238,23 @@ def extract_instance_mesh(
     mesh = trimesh.Trimesh(vertices=verts, faces=faces, process=False)
 
     if color_fn is not None:
-        vert_t = torch.as_tensor(verts, dtype=torch.float32, device=device)
-        def vertex_batch(start: int, stop: int) -> torch.Tensor:
-            return vert_t[start:stop]
+        colour_vertices(mesh, color_fn, batch_points, device)
+    return mesh
 
-        colors = _evaluate_in_batches(color_fn, vertex_batch, len(verts), 3, batch_points, "color_fn")
-        mesh.visual.vertex_colors = _to_rgba_uint8(colors)
+
+def colour_vertices(mesh: trimesh.Trimesh, color_fn: ColorFn, batch_points: int = 65536,
+                    device: torch.device | str = "cpu") -> trimesh.Trimesh:
+    """Set ``mesh``'s vertex colours (uint8 RGBA) from ``color_fn`` at its vertices, in place; returns it.
+
+    Separate from ``extract_instance_mesh`` so a caller that cuts faces afterwards colours only the vertices
+    it keeps (the colour head costs as much per point as the occupancy)."""
+    vert_t = torch.as_tensor(np.asarray(mesh.vertices), dtype=torch.float32, device=torch.device(device))
+
+    def vertex_batch(start: int, stop: int) -> torch.Tensor:
+        return vert_t[start:stop]
+
+    colors = _evaluate_in_batches(color_fn, vertex_batch, len(vert_t), 3, batch_points, "color_fn")
+    mesh.visual.vertex_colors = _to_rgba_uint8(colors)
     return mesh
 
 

@@ -20,7 +20,7 @@ from mapping.model.agent_config import MappingConfig
 from mapping.model.bounds import InstanceBound
 from mapping.model.checkpoint import load_checkpoint, save_checkpoint
 from mapping.data import Frame, Intrinsics
-from mapping.evaluate import extract_instance_mesh
+from mapping.evaluate import colour_vertices, extract_instance_mesh
 from mapping.model.field import FieldOutput, LiveRows
 from mapping.model.training_batch import TrainingBatch
 from mapping.model.banks import instance_banks
@@ -315,12 +315,11 @@ class MappingAgent:
             space = self.observed.get(iid)
             mesh = extract_instance_mesh(bank.occupancy_fn(slot.row), slot.bound.lo, slot.bound.hi,
                                          voxel_size_m=voxel, max_resolution=self.config.max_mesh_resolution,
-                                         color_fn=bank.colour_fn(slot.row), device=self.device,
-                                         needed=None if space is None else ReachSamples(space))
+                                         device=self.device, needed=None if space is None else ReachSamples(space))
             if mesh is not None and space is not None:
                 mesh = observed_faces(mesh, space)
-            if mesh is not None:
-                meshes[iid] = mesh
+            if mesh is not None:  # coloured after the cut: only the vertices kept
+                meshes[iid] = colour_vertices(mesh, bank.colour_fn(slot.row), device=self.device)
         return meshes
 
     @torch.no_grad()
