@@ -9,6 +9,8 @@ dtype('int8')``; SuperSuit 3.11, SB3 2.9). ``ActionCast`` rounds actions to the 
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 
 
@@ -56,7 +58,7 @@ class ActionCast(_vec_env_wrapper()):
 
 
 class _WorkerEnv:
-    """Picklable constructor of worker ``index``'s vector env (SuperSuit ships it to its process)."""
+    """Picklable constructor of world ``index``'s vector env (SuperSuit ships it to its worker process)."""
 
     def __init__(self, env_factory, index: int):
         self.env_factory, self.index = env_factory, index
@@ -67,18 +69,45 @@ class _WorkerEnv:
         return ss.pettingzoo_env_to_vec_env_v1(self.env_factory(self.index))
 
 
-def sb3_vec_env_from_factory(env_factory, workers: int, seed: int = 0):
-    """An SB3 ``VecEnv`` over ``workers`` envs, ``env_factory(i)`` each (in ``workers`` processes when more
-    than one), every agent an entry; returns it with the team size. Seeded through reset (SB3's ``seed=``
-    fails on SuperSuit's concatenation)."""
+def _spaces(env) -> tuple:
+    first = env.possible_agents[0]
+    return env.observation_space(first), env.action_space(first)
+
+
+def check_vector_size(workers: int, worlds_per_worker: int, cores: int | None = None) -> None:
+    """ValueError naming the problem: no worker or world, or more worker processes than cores."""
+    cores = cores or os.cpu_count() or 1
+    if workers < 1:
+        raise ValueError(f"--workers must be at least 1 (1: this process), got {workers}")
+    if worlds_per_worker < 1:
+        raise ValueError(f"--worlds-per-worker must be at least 1, got {worlds_per_worker}")
+    if workers > cores:
+        raise ValueError(f"--workers {workers} asks for more worker processes than this machine's {cores} cores; "
+                         f"use --workers {cores} and --worlds-per-worker {-(-workers * worlds_per_worker // cores)} "
+                         "for as many worlds")
+
+
+def sb3_vec_env_from_factory(env_factory, workers: int, seed: int = 0, worlds_per_worker: int = 1):
+    """An SB3 ``VecEnv`` over ``workers`` x ``worlds_per_worker`` envs, ``env_factory(i)`` each (``workers``
+    processes when more than one, each stepping its worlds in turn), every agent an entry; returns it with the
+    team size. Seeded through reset (SB3's ``seed=`` fails on SuperSuit's concatenation)."""
     from supersuit.vector import MakeCPUAsyncConstructor  # noqa: PLC0415
     from supersuit.vector.sb3_vector_wrapper import SB3VecEnvWrapper  # noqa: PLC0415
 
+    check_vector_size(workers, worlds_per_worker)
     probe = env_factory(0)
-    num_agents = len(probe.possible_agents)
-    spaces = probe.observation_space(probe.possible_agents[0]), probe.action_space(probe.possible_agents[0])
+    num_agents, spaces = len(probe.possible_agents), _spaces(probe)
     probe.close()
-    constructors = [_WorkerEnv(env_factory, i) for i in range(workers)]
+    for index in range(1, workers * worlds_per_worker):  # every entry shares one policy: refuse here, not in a worker
+        env = env_factory(index)
+        other = _spaces(env)
+        scene = getattr(env, "scene", "?")
+        env.close()
+        if other != spaces:
+            raise ValueError(f"world {index} ({scene}) has other spaces than world 0 (observation {other[0]}, action "
+                             f"{other[1]}; world 0: {spaces[0]}, {spaces[1]}): every world of a vector env needs the "
+                             "same preset and team size")
+    constructors = [_WorkerEnv(env_factory, i) for i in range(workers * worlds_per_worker)]
     vec = MakeCPUAsyncConstructor(workers if workers > 1 else 0)(constructors, *spaces)
     vec = ActionCast(SB3VecEnvWrapper(vec))
     vec.seed(seed)

@@ -30,7 +30,10 @@ class TrainConfig:
     total_env_steps: int = 20_000
     """Env steps (rounds of one team) over all workers; agent transitions are this times the team size."""
     workers: int = 2
-    """Worker processes, each stepping its own env (1: in this process)."""
+    """Worker processes (1: this process); at most one per core."""
+    worlds_per_worker: int = 1
+    """Envs (worlds) each worker steps in turn: they share its process's text encoder, world and frame caches,
+    so K worlds cost less memory than K workers (``docs/profile.md``: memory per env)."""
     n_steps: int = 32
     """Rounds per worker and agent between two updates."""
     batch_size: int = 64
@@ -56,6 +59,7 @@ def same_run(old: dict, new: dict) -> bool:
         kept = {k: v for k, v in settings.items() if k not in ("command", "title", "experiment")}
         kept["train"] = {k: v for k, v in settings.get("train", {}).items() if k != "total_env_steps"}
         kept["train"].setdefault("action_form", "entries")  # runs begun before the round form were entries
+        kept["train"].setdefault("worlds_per_worker", 1)  # and before several worlds per worker, one each
         return kept
     return core(old) == core(new)
 
@@ -197,7 +201,7 @@ def train(env_factory: Callable[[int], object], config: TrainConfig, out: str | 
     # (the round form learns on a gated env: one action entry per agent, broadcast to the env's entries)
     gated = check_action_form(config.action_form) == "round"
     vec, num_agents = sb3_vec_env_from_factory(GatedFactory(env_factory) if gated else env_factory, config.workers,
-                                               config.seed)
+                                               config.seed, config.worlds_per_worker)
     space = vec.observation_space
     entries = 2 * (num_agents - 1) if gated else int(vec.action_space.n)  # the env's layout (policies.scripted)
     network_config = NetworkConfig(map_channels=len(MAP_CHANNELS), comm_size=int(space["comm"].shape[0]),

@@ -55,12 +55,19 @@ def _episode_rows_callback():
     return EpisodeRows
 
 
-def _env_creator(env_factory: Callable[[int], object]):
-    """RLlib's env creator: runner k (1-based; 0 is the local runner) gets ``env_factory(k - 1)``."""
+def _env_creator(env_factory: Callable[[int], object], worlds_per_runner: int = 1):
+    """RLlib's env creator: the j-th env runner k makes (1-based; 0 is the local runner) gets
+    ``env_factory((k - 1) * worlds_per_runner + j)``. RLlib's multi-agent runner gives all its envs one context
+    (``vector_index`` 0), so j counts the envs this process has made (each runner unpickles its own counter)."""
     from ray.rllib.env.wrappers.pettingzoo_env import ParallelPettingZooEnv  # noqa: PLC0415
 
+    made = [0]
+
     def create(context) -> ParallelPettingZooEnv:
-        return ParallelPettingZooEnv(env_factory(max(int(getattr(context, "worker_index", 0)) - 1, 0)))
+        runner = max(int(getattr(context, "worker_index", 0)) - 1, 0)
+        index = runner * worlds_per_runner + made[0] % worlds_per_runner
+        made[0] += 1
+        return ParallelPettingZooEnv(env_factory(index))
 
     return create
 
@@ -118,6 +125,8 @@ def train_rllib(env_factory: Callable[[int], object], config: TrainConfig, out: 
                          "RLlib's module draws one Bernoulli per action entry")
     if config.workers < 1:
         raise ValueError(f"the RLlib backend needs at least one env runner (--workers), got {config.workers}")
+    if config.worlds_per_worker < 1:
+        raise ValueError(f"--worlds-per-worker must be at least 1, got {config.worlds_per_worker}")
     out = Path(out)
     settings = claim_run_folder(out, {"train": asdict(config), "backend": "rllib", **training_record})
 
@@ -145,19 +154,19 @@ def train_rllib(env_factory: Callable[[int], object], config: TrainConfig, out: 
         if cpus < config.workers:  # the env runners would wait for CPUs forever, and say nothing
             raise ValueError(f"{config.workers} env runners (--workers) ask for 1 CPU each but the Ray cluster has "
                              f"{cpus:g}")
-        register_env(ENV_NAME, _env_creator(env_factory))
+        register_env(ENV_NAME, _env_creator(env_factory, config.worlds_per_worker))
         # ---- PPO: every agent maps to one shared module ----------------------------------------------------
         ppo = (PPOConfig()
                .environment(ENV_NAME, disable_env_checking=True)
                .framework("torch")
-               .env_runners(num_env_runners=config.workers, num_envs_per_env_runner=1,
+               .env_runners(num_env_runners=config.workers, num_envs_per_env_runner=config.worlds_per_worker,
                             rollout_fragment_length=config.n_steps, sample_timeout_s=3600.0,
                             num_cpus_per_env_runner=1)
                .learners(num_learners=0)
                .multi_agent(policies={MODULE}, policy_mapping_fn=lambda agent_id, episode, **kw: MODULE)
                .rl_module(rl_module_spec=MultiRLModuleSpec(rl_module_specs={
                    MODULE: RLModuleSpec(module_class=CommRLModule, model_config=network_config)}))
-               .training(train_batch_size_per_learner=config.n_steps * config.workers,
+               .training(train_batch_size_per_learner=config.n_steps * config.workers * config.worlds_per_worker,
                          minibatch_size=config.batch_size, num_epochs=config.n_epochs, lr=config.learning_rate,
                          gamma=config.gamma, lambda_=config.gae_lambda, entropy_coeff=config.ent_coef,
                          clip_param=config.clip_range,

@@ -42,3 +42,39 @@ def test_torchrl_wrapper_passes_check_env_specs(cache):
     assert rollout["agent", "observation", "map"].shape[-3:] == (48, 48, 6)
     assert rollout["agent", "observation", "comm"].shape[-1] == 10
     assert rollout["next", "agent", "info", "completion_ratio"].shape == (3, 2)
+
+
+class _RecordingFactory:
+    """``env_factory(i)`` of the real env that remembers which world indices it was asked for."""
+
+    def __init__(self, cache: str, odd_agents: int | None = None):
+        self.cache, self.odd_agents, self.made = cache, odd_agents, []
+
+    def __call__(self, index: int):
+        self.made.append(index)
+        agents = self.odd_agents if self.odd_agents and index % 2 else 2
+        return parallel_env(preset="rl_tiny", num_agents=agents, cache_dir=self.cache)
+
+
+def test_several_worlds_step_in_one_process_and_bad_sizes_are_named(cache):
+    """``--worlds-per-worker``: K envs in one worker, every agent of each an entry; a world with other spaces,
+    no worker, no world or more workers than cores: an error naming the problem."""
+    pytest.importorskip("supersuit")
+    pytest.importorskip("stable_baselines3")
+    from policies.sb3_vec import check_vector_size, sb3_vec_env_from_factory
+
+    factory = _RecordingFactory(cache)
+    vec, num_agents = sb3_vec_env_from_factory(factory, workers=1, seed=3, worlds_per_worker=2)
+    assert num_agents == 2 and vec.num_envs == 4 and sorted(set(factory.made)) == [0, 1]
+    vec.reset()
+    _, rewards, dones, infos = vec.step(np.ones((4, 2), np.int8))
+    assert rewards.shape == (4,) and all("completion_ratio" in i for i in infos)
+    vec.close()
+    with pytest.raises(ValueError, match="world 1 .*other spaces than world 0"):
+        sb3_vec_env_from_factory(_RecordingFactory(cache, odd_agents=3), workers=1, worlds_per_worker=2)
+    with pytest.raises(ValueError, match="--workers must be at least 1"):
+        check_vector_size(0, 1)
+    with pytest.raises(ValueError, match="--worlds-per-worker must be at least 1"):
+        check_vector_size(1, 0)
+    with pytest.raises(ValueError, match="more worker processes than this machine's 2 cores.*--worlds-per-worker 2"):
+        check_vector_size(4, 1, cores=2)

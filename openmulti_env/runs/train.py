@@ -94,7 +94,8 @@ class WorldCycle(ParallelEnv):
 
 @dataclass(frozen=True)
 class WorkerEnvs:
-    """Picklable factory: worker ``index``'s ``WorldCycle`` (it starts ``index`` x its share into the list)."""
+    """Picklable factory: world ``index``'s ``WorldCycle`` (it starts ``index`` x its share into the list);
+    ``workers`` counts every world of the vector env (workers x worlds per worker)."""
 
     scenes: tuple[str, ...]
     workers: int
@@ -182,7 +183,7 @@ def train_command(args) -> int:
     scenes = tuple(args.scenes) if args.scenes else DEFAULT_TRAIN_SCENES
     check_training_scenes(scenes)
     env_kwargs, tree = env_settings(args)
-    factory = WorkerEnvs(scenes, config.workers, args.episodes_per_world, env_kwargs)
+    factory = WorkerEnvs(scenes, config.workers * config.worlds_per_worker, args.episodes_per_world, env_kwargs)
     cost = tree.env.comm_cost_per_mb
     record = {"command": "openmulti train " + " ".join(shlex.quote(a) for a in sys.argv[2:]), "scenes": list(scenes),
               "env": env_summary(tree, env_kwargs), "experiment": tree_record(tree),
