@@ -307,6 +307,9 @@ On a laptop (2 cores): a smoke run in minutes,
   openmulti train --preset rl_tiny --agents 2 --env-steps 256 --workers 1 --out runs/train_smoke
 and the shipped policy's run (about an hour; policies/trained/README.md records it),
   openmulti train --preset rl_small --env-steps 4096 --workers 2 --comm-cost-per-mb 0.01 --out runs/train_rl_small
+--workers is at most one per core; --worlds-per-worker K steps K worlds in each worker in turn (more worlds per
+update, not more steps per hour: peak 1.13 GB for one rl_small world in a process, 0.87 GB each for two, 0.63 GB
+each for four; docs/profile.md), e.g. --workers 2 --worlds-per-worker 2 on 8 GB.
 On a cluster: RLlib's PPO with one env runner per core (the same settings, run folder and policy files),
   openmulti train --backend rllib --ray auto --workers 32 --env-steps 200000 --out runs/train_cluster
 (started on the cluster's head node, or `ray job submit --working-dir . -- openmulti train ...`;
