@@ -78,10 +78,20 @@ class ObservedRows:
         return self.field.bound_max
 
     def query(self, points: Tensor, rows: Tensor, with_colour: bool = True, block_size: int = 4096) -> FieldOutput:
-        """The field's output with occupancy zeroed where the row's instance never saw surface nearby."""
-        out = self.field.query(points, rows, with_colour=with_colour, block_size=block_size)
+        """The field's output with occupancy zeroed where the row's instance never saw surface nearby (colour
+        too). The networks run only on the points inside the reach: the readers (observation, reward probes,
+        rendered views) ask mostly about points outside it."""
         allowed = self.mask(points, rows, reach_mask)
-        return FieldOutput(torch.where(allowed, out.occupancy, torch.zeros_like(out.occupancy)), out.colour)
+        if bool(allowed.all()):
+            return self.field.query(points, rows, with_colour=with_colour, block_size=block_size)
+        occupancy = points.new_zeros(len(points))
+        colour = points.new_zeros(len(points), 3) if with_colour else None
+        if bool(allowed.any()):
+            out = self.field.query(points[allowed], rows[allowed], with_colour=with_colour, block_size=block_size)
+            occupancy[allowed] = out.occupancy
+            if with_colour:
+                colour[allowed] = out.colour
+        return FieldOutput(occupancy, colour)
 
     def looked(self, points: Tensor, rows: Tensor) -> Tensor:
         """(n,) bool: the row's instance looked at the point's cell (True for rows without a space)."""
