@@ -250,3 +250,26 @@ def test_reach_samples_of_a_space_without_surface_need_nothing():
     space = ObservedSpace.empty(0.025)
     space.cover(np.zeros(3), np.ones(3) * 0.2)
     assert not ReachSamples(space)(np.zeros(3), 0.01, (20, 20, 20)).any()
+
+
+def test_the_one_gather_mask_equals_each_rows_own_lookup():
+    """``ObservedRows.mask`` lays every row's grid end to end and gathers once; it must say what each space's own
+    lookup says (``reach_mask`` / ``looked_mask``), rows without a space True, points off a grid False."""
+    from mapping.model.observed_field import ObservedRows, looked_grid, looked_mask, reach_mask
+
+    rng = np.random.default_rng(4)
+    spaces = {}
+    for row, origin in {0: (-3, 2, 0), 2: (5, -4, 1), 3: (0, 0, 0)}.items():
+        states = rng.choice([UNKNOWN, FREE, SURFACE], size=(6, 5, 7), p=[0.5, 0.3, 0.2]).astype(np.uint8)
+        spaces[row] = ObservedSpace(0.05, np.array(origin, np.int64), states)
+    spaces[4] = ObservedSpace.empty(0.05)  # an instance that saw nothing: False everywhere
+    points = torch.as_tensor(rng.uniform(-0.3, 0.6, size=(4000, 3)), dtype=torch.float32)
+    rows = torch.as_tensor(rng.integers(0, 5, size=4000))  # row 1 has no space
+    view = ObservedRows(object(), spaces)
+    for grid_of, single in ((None, reach_mask), (looked_grid, looked_mask)):
+        expected = torch.ones(len(points), dtype=torch.bool)
+        for row, space in spaces.items():
+            expected[rows == row] = single(space, points[rows == row])
+        got = view.mask(points, rows, grid_of)
+        assert torch.equal(got, expected)
+        assert got[rows == 1].all() and not got[rows == 4].any() and 0 < int(got[rows != 1].sum()) < int((rows != 1).sum())

@@ -81,7 +81,7 @@ class ObservedRows:
         """The field's output with occupancy zeroed where the row's instance never saw surface nearby (colour
         too). The networks run only on the points inside the reach: the readers (observation, reward probes,
         rendered views) ask mostly about points outside it."""
-        allowed = self.mask(points, rows, reach_mask)
+        allowed = self.mask(points, rows)
         if bool(allowed.all()):
             return self.field.query(points, rows, with_colour=with_colour, block_size=block_size)
         occupancy = points.new_zeros(len(points))
@@ -89,25 +89,57 @@ class ObservedRows:
         if bool(allowed.any()):
             out = self.field.query(points[allowed], rows[allowed], with_colour=with_colour, block_size=block_size)
             occupancy[allowed] = out.occupancy
-            if with_colour:
+            if out.colour is None:
+                colour = None
+            elif colour is not None:
                 colour[allowed] = out.colour
         return FieldOutput(occupancy, colour)
 
     def looked(self, points: Tensor, rows: Tensor) -> Tensor:
         """(n,) bool: the row's instance looked at the point's cell (True for rows without a space)."""
-        return self.mask(points, rows, looked_mask)
+        return self.mask(points, rows, looked_grid)
 
-    def mask(self, points: Tensor, rows: Tensor, test: Callable[[ObservedSpace, Tensor], Tensor]) -> Tensor:
-        """(n,) bool of ``test(space, points)`` per row (True for rows without a space)."""
+    def mask(self, points: Tensor, rows: Tensor, grid_of: Callable[[ObservedSpace], np.ndarray] | None = None
+             ) -> Tensor:
+        """(n,) bool: ``grid_of(space)`` (default: the surface reach) at each point's cell of its row's space, False
+        outside that grid, True for rows without a space. One gather over all rows: every row's grid laid end to
+        end in one flat buffer (the per-row loop it replaces cost a tenth of an ``rl_small`` step)."""
+        grid_of = ObservedSpace.surface_reach if grid_of is None else grid_of
         allowed = torch.ones(len(points), dtype=torch.bool, device=points.device)
         if not self.spaces or not len(points):
             return allowed
-        for row in torch.unique(rows).tolist():
-            space = self.spaces.get(int(row))
-            if space is not None:
-                of_row = rows == row
-                allowed[of_row] = test(space, points[of_row])
+        present = [r for r in torch.unique(rows).tolist() if int(r) in self.spaces]
+        if not present:
+            return allowed
+        spaces = [self.spaces[int(r)] for r in present]
+        grids = [np.asarray(grid_of(sp), bool) for sp in spaces]
+        sizes = np.array([g.size for g in grids], np.int64)
+        table = np.zeros((len(spaces), 8), np.float64)  # cell_m, origin (3), shape (3), offset; one row per space
+        table[:, 0] = [sp.cell_m for sp in spaces]
+        table[:, 1:4] = [sp.origin for sp in spaces]
+        table[:, 4:7] = [g.shape for g in grids]
+        table[:, 7] = np.cumsum(sizes) - sizes
+        lookup = torch.full((int(rows.max()) + 1,), -1, dtype=torch.long, device=points.device)
+        lookup[torch.as_tensor(present, dtype=torch.long, device=points.device)] = torch.arange(
+            len(present), device=points.device)
+        which = lookup[rows]
+        has_space = which >= 0
+        entry = torch.as_tensor(table, device=points.device)[which[has_space]]  # (m, 8) float64
+        origin, shape, offset = entry[:, 1:4].long(), entry[:, 4:7].long(), entry[:, 7].long()
+        idx = torch.floor(points[has_space].double() / entry[:, :1]).long() - origin
+        inside = ((idx >= 0) & (idx < shape)).all(dim=1)
+        flat = offset + (idx[:, 0] * shape[:, 1] + idx[:, 1]) * shape[:, 2] + idx[:, 2]
+        buffer = torch.as_tensor(np.concatenate([g.reshape(-1) for g in grids]) if grids else np.zeros(0, bool),
+                                 device=points.device)
+        value = torch.zeros(len(idx), dtype=torch.bool, device=points.device)
+        value[inside] = buffer[flat[inside]]
+        allowed[has_space] = value
         return allowed
+
+
+def looked_grid(space: ObservedSpace) -> np.ndarray:
+    """(X, Y, Z) bool: some ray looked at the cell (free or surface)."""
+    return space.states > UNKNOWN
 
 
 def observed_faces(mesh: trimesh.Trimesh, space: ObservedSpace, allowed: np.ndarray | None = None
