@@ -301,3 +301,17 @@ def test_training_checkpoints_never_run_code_on_resume(tmp_path):
     (folder / "extra.pkl").write_bytes(b"added later")
     with pytest.raises(UnsafeCheckpointError, match="changed after it was written"):
         verify_checkpoint(folder, keys)
+
+
+def test_a_training_folder_made_before_worlds_per_worker_still_resumes():
+    """``same_run`` fills in the settings added after runs were made (``action_form``, ``worlds_per_worker``) at
+    the behaviour from before them; another value is another run."""
+    from dataclasses import asdict
+
+    from policies.train import TrainConfig, same_run
+
+    now = {"train": asdict(TrainConfig(workers=1)), "command": "openmulti train --workers 1"}
+    before = {"train": {k: v for k, v in now["train"].items() if k not in ("worlds_per_worker", "action_form")},
+              "command": "an older command line"}
+    assert same_run(before, now)
+    assert not same_run(before, {**now, "train": {**now["train"], "worlds_per_worker": 2}})
