@@ -54,7 +54,8 @@ def row_of(folder: Path, scene: str, seed: int, scenario: str, policy: str) -> d
 
 
 def report(root: Path, rows: list[dict]) -> None:
-    """Markdown table (per cell and scenario, each policy's completion and MB against `always`) and PNG."""
+    """Markdown table (per cell and scenario, each policy's completion and MB against that scenario's `always`)
+    and PNG."""
     import matplotlib  # noqa: PLC0415
 
     matplotlib.use("Agg")
@@ -67,8 +68,7 @@ def report(root: Path, rows: list[dict]) -> None:
     cells = sorted({(g[0], g[1]) for g in groups})
     for scene, seed, scenario in groups:
         mine = [r for r in rows if (r["scene"], r["seed"], r["scenario"]) == (scene, seed, scenario)]
-        base = next((r for r in rows if (r["scene"], r["seed"], r["scenario"], r["policy"]) ==
-                     (scene, seed, "unlimited", "always")), None)
+        base = next((r for r in mine if r["policy"] == "always"), None)  # the scenario's own always
         for r in mine:
             vs = f"{r['comp_ratio'] - base['comp_ratio']:+.2f}" if base else "-"
             share = f"{100 * r['mb'] / base['mb']:.1f} %" if base and base["mb"] else "-"
