@@ -61,7 +61,9 @@ def main() -> None:
     parser.add_argument("--one", type=int, help=argparse.SUPPRESS)  # the child process's K
     parser.add_argument("--out", help="also write the rows to this JSON")
     args = parser.parse_args()
-    if args.one:
+    if min(args.worlds) < 1 or (args.one is not None and args.one < 1):
+        parser.error("--worlds must be at least 1")
+    if args.one is not None:
         print(json.dumps(one(args.preset, args.one, args.episodes, args.steps_per_episode)))
         return
     rows = []

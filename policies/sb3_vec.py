@@ -76,7 +76,7 @@ def _spaces(env) -> tuple:
 
 def check_vector_size(workers: int, worlds_per_worker: int, cores: int | None = None) -> None:
     """ValueError naming the problem: no worker or world, or more worker processes than cores."""
-    cores = cores or os.cpu_count() or 1
+    cores = cores or (len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()) or 1
     if workers < 1:
         raise ValueError(f"--workers must be at least 1 (1: this process), got {workers}")
     if worlds_per_worker < 1:

@@ -136,3 +136,11 @@ def test_the_env_takes_dotted_paths_and_whole_trees():
     assert parallel_env(preset="rl_tiny", config=tree).config.env.map_size == 32
     with pytest.raises(ValueError, match="did you mean rays_per_object"):
         parallel_env(preset="rl_tiny", rays_per_objetc=7)
+
+
+def test_a_record_with_keys_of_its_own_is_not_trusted():
+    tree = experiment("tiny", scene="tiny", agents=2, policy="always")
+    team = as_record(asdict(resolved_team(tree, tree.team.mapping)))
+    now = {**checkpoint_identity(tree, {}), "team": team}
+    assert read_checkpoint_identity({**json.loads(json.dumps(now)), "extra": 1}) is None
+    assert read_checkpoint_identity({k: v for k, v in now.items() if k != "source"}) is None

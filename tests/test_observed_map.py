@@ -273,3 +273,4 @@ def test_the_one_gather_mask_equals_each_rows_own_lookup():
         got = view.mask(points, rows, grid_of)
         assert torch.equal(got, expected)
         assert got[rows == 1].all() and not got[rows == 4].any() and 0 < int(got[rows != 1].sum()) < int((rows != 1).sum())
+    assert view.mask(points[:3], torch.tensor([-1, 0, -1])).tolist() == [True, bool(reach_mask(spaces[0], points[1:2])), True]

@@ -79,8 +79,8 @@ class ObservedRows:
 
     def query(self, points: Tensor, rows: Tensor, with_colour: bool = True, block_size: int = 4096) -> FieldOutput:
         """The field's output with occupancy zeroed where the row's instance never saw surface nearby (colour
-        too). The networks run only on the points inside the reach: the readers (observation, reward probes,
-        rendered views) ask mostly about points outside it."""
+        too: zeros when asked for, whatever the field gives there). The networks run only on the points inside
+        the reach: the readers (observation, reward probes, rendered views) ask mostly about points outside it."""
         allowed = self.mask(points, rows)
         if bool(allowed.all()):
             return self.field.query(points, rows, with_colour=with_colour, block_size=block_size)
@@ -122,10 +122,12 @@ class ObservedRows:
         lookup = torch.full((int(rows.max()) + 1,), -1, dtype=torch.long, device=points.device)
         lookup[torch.as_tensor(present, dtype=torch.long, device=points.device)] = torch.arange(
             len(present), device=points.device)
-        which = lookup[rows]
+        which = torch.where(rows >= 0, lookup[rows.clamp_min(0)], -1)  # a negative row has no space
         has_space = which >= 0
         entry = torch.as_tensor(table, device=points.device)[which[has_space]]  # (m, 8) float64
         origin, shape, offset = entry[:, 1:4].long(), entry[:, 4:7].long(), entry[:, 7].long()
+        # true division by the cell (as ObservedSpace.cells_of in NumPy) on every device; a Python-float divisor
+        # would be a reciprocal multiply on CUDA, a cell apart at exact float64 boundaries
         idx = torch.floor(points[has_space].double() / entry[:, :1]).long() - origin
         inside = ((idx >= 0) & (idx < shape)).all(dim=1)
         flat = offset + (idx[:, 0] * shape[:, 1] + idx[:, 1]) * shape[:, 2] + idx[:, 2]

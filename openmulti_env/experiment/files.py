@@ -145,13 +145,14 @@ def _with_neutral_defaults(record: dict) -> dict | None:
     """A record of this version written before some ``neutral_default`` settings existed, with them filled in
     at their defaults (the behaviour from before they existed); None when it lacks any other setting."""
     experiment_record = record.get("experiment")
-    if record.get("version") != VERSION or not isinstance(experiment_record, dict) or "team" not in record:
+    if (record.get("version") != VERSION or not isinstance(experiment_record, dict)
+            or set(record) != {"format", "version", "experiment", "source", "team"}):
         return None
     try:
         tree = from_mapping(Experiment, experiment_record)
     except ConfigError:
         return None
-    filled = {**checkpoint_identity(tree, record.get("source", {})), "team": record["team"]}
+    filled = {**checkpoint_identity(tree, record["source"]), "team": record["team"]}
     lacking = missing_paths(experiment_record, filled["experiment"])
     if lacking is None or not lacking <= neutral_default_paths(tree):
         return None
