@@ -255,7 +255,23 @@ def test_reach_samples_of_a_space_without_surface_need_nothing():
 def test_the_one_gather_mask_equals_each_rows_own_lookup():
     """``ObservedRows.mask`` lays every row's grid end to end and gathers once; it must say what each space's own
     lookup says (``reach_mask`` / ``looked_mask``), rows without a space True, points off a grid False."""
-    from mapping.model.observed_field import ObservedRows, looked_grid, looked_mask, reach_mask
+    from mapping.model.observed_field import ObservedRows, looked_grid
+
+    def own_lookup(grid: np.ndarray, space: ObservedSpace, pts: torch.Tensor) -> torch.Tensor:
+        """One space's grid at each point's cell, False off the grid (the per-row form the gather replaced)."""
+        out = torch.zeros(len(pts), dtype=torch.bool)
+        if not grid.size:
+            return out
+        idx = torch.floor(pts.double() / space.cell_m).long() - torch.as_tensor(space.origin)
+        inside = ((idx >= 0) & (idx < torch.as_tensor(grid.shape))).all(dim=1)
+        out[inside] = torch.as_tensor(grid)[tuple(idx[inside].T)]
+        return out
+
+    def reach_mask(space, pts):
+        return own_lookup(space.surface_reach(), space, pts)
+
+    def looked_mask(space, pts):
+        return own_lookup(looked_grid(space), space, pts)
 
     rng = np.random.default_rng(4)
     spaces = {}

@@ -32,28 +32,6 @@ class QueryableField(Protocol):
     def query(self, points: Tensor, rows: Tensor, with_colour: bool = True, block_size: int = 4096) -> FieldOutput: ...
 
 
-def _cells(grid: np.ndarray, space: ObservedSpace, points: Tensor) -> Tensor:
-    """(n,) bool on ``points``' device: ``grid`` (the space's shape) at each point's cell, False outside."""
-    out = torch.zeros(len(points), dtype=torch.bool, device=points.device)
-    if not grid.size:
-        return out
-    idx = torch.floor(points.double() / space.cell_m).long() - torch.as_tensor(space.origin, device=points.device)
-    inside = ((idx >= 0) & (idx < torch.as_tensor(grid.shape, device=points.device))).all(dim=1)
-    ijk = idx[inside]
-    out[inside] = torch.as_tensor(grid, device=points.device)[ijk[:, 0], ijk[:, 1], ijk[:, 2]]
-    return out
-
-
-def reach_mask(space: ObservedSpace, points: Tensor) -> Tensor:
-    """(n,) bool: the points' cells lie within the space's surface reach (where surface may be drawn)."""
-    return _cells(space.surface_reach(), space, points)
-
-
-def looked_mask(space: ObservedSpace, points: Tensor) -> Tensor:
-    """(n,) bool: some ray looked at the points' cells (free or surface)."""
-    return _cells(space.states > UNKNOWN, space, points)
-
-
 class ObservedRows:
     """``field`` with each row's occupancy zero outside its observed space's reach (rows without one: as is).
 
@@ -113,27 +91,25 @@ class ObservedRows:
             return allowed
         spaces = [self.spaces[int(r)] for r in present]
         grids = [np.asarray(grid_of(sp), bool) for sp in spaces]
-        sizes = np.array([g.size for g in grids], np.int64)
-        table = np.zeros((len(spaces), 8), np.float64)  # cell_m, origin (3), shape (3), offset; one row per space
-        table[:, 0] = [sp.cell_m for sp in spaces]
-        table[:, 1:4] = [sp.origin for sp in spaces]
-        table[:, 4:7] = [g.shape for g in grids]
-        table[:, 7] = np.cumsum(sizes) - sizes
-        lookup = torch.full((int(rows.max()) + 1,), -1, dtype=torch.long, device=points.device)
-        lookup[torch.as_tensor(present, dtype=torch.long, device=points.device)] = torch.arange(
-            len(present), device=points.device)
+        device = points.device
+        sizes = torch.as_tensor([g.size for g in grids], dtype=torch.long, device=device)
+        cell_of = torch.as_tensor([sp.cell_m for sp in spaces], dtype=torch.float64, device=device)
+        origin_of = torch.as_tensor(np.stack([sp.origin for sp in spaces]), dtype=torch.long, device=device)
+        shape_of = torch.as_tensor([g.shape for g in grids], dtype=torch.long, device=device)
+        offset_of = torch.cumsum(sizes, 0) - sizes  # where each grid starts in the flat buffer
+        lookup = torch.full((int(rows.max()) + 1,), -1, dtype=torch.long, device=device)
+        lookup[torch.as_tensor(present, dtype=torch.long, device=device)] = torch.arange(len(present), device=device)
         which = torch.where(rows >= 0, lookup[rows.clamp_min(0)], -1)  # a negative row has no space
         has_space = which >= 0
-        entry = torch.as_tensor(table, device=points.device)[which[has_space]]  # (m, 8) float64
-        origin, shape, offset = entry[:, 1:4].long(), entry[:, 4:7].long(), entry[:, 7].long()
+        k = which[has_space]
         # true division by the cell (as ObservedSpace.cells_of in NumPy) on every device; a Python-float divisor
         # would be a reciprocal multiply on CUDA, a cell apart at exact float64 boundaries
-        idx = torch.floor(points[has_space].double() / entry[:, :1]).long() - origin
+        idx = torch.floor(points[has_space].double() / cell_of[k, None]).long() - origin_of[k]
+        shape = shape_of[k]
         inside = ((idx >= 0) & (idx < shape)).all(dim=1)
-        flat = offset + (idx[:, 0] * shape[:, 1] + idx[:, 1]) * shape[:, 2] + idx[:, 2]
-        buffer = torch.as_tensor(np.concatenate([g.reshape(-1) for g in grids]) if grids else np.zeros(0, bool),
-                                 device=points.device)
-        value = torch.zeros(len(idx), dtype=torch.bool, device=points.device)
+        flat = offset_of[k] + (idx[:, 0] * shape[:, 1] + idx[:, 1]) * shape[:, 2] + idx[:, 2]
+        buffer = torch.as_tensor(np.concatenate([g.reshape(-1) for g in grids]), device=device)
+        value = torch.zeros(len(idx), dtype=torch.bool, device=device)
         value[inside] = buffer[flat[inside]]
         allowed[has_space] = value
         return allowed
