@@ -290,3 +290,25 @@ def test_the_one_gather_mask_equals_each_rows_own_lookup():
         assert torch.equal(got, expected)
         assert got[rows == 1].all() and not got[rows == 4].any() and 0 < int(got[rows != 1].sum()) < int((rows != 1).sum())
     assert view.mask(points[:3], torch.tensor([-1, 0, -1])).tolist() == [True, bool(reach_mask(spaces[0], points[1:2])), True]
+
+
+def test_the_cached_reach_is_kept_through_free_marks_and_redone_after_new_surface():
+    from scipy.ndimage import binary_dilation  # noqa: PLC0415
+
+    rng = np.random.default_rng(0)
+    space = ObservedSpace.empty(0.05)
+    space.cover(np.zeros(3), np.ones(3))
+    space.mark(rng.uniform(0.3, 0.7, (40, 3)), SURFACE)
+
+    def fresh() -> np.ndarray:
+        return binary_dilation(space.states == SURFACE, np.ones((3, 3, 3), bool))
+
+    first = space.surface_reach()
+    assert np.array_equal(first, fresh())
+    space.mark(rng.uniform(0, 1, (500, 3)), FREE)  # free marks never touch the surface cells
+    assert space.surface_reach() is first
+    space.mark(space.lo + (np.argwhere(space.states == SURFACE)[:5] + 0.5) * 0.05, SURFACE)  # already surface
+    assert space.surface_reach() is first
+    space.mark(np.array([[0.05, 0.05, 0.05]]), SURFACE)  # a new surface cell far from the others
+    again = space.surface_reach()
+    assert again is not first and np.array_equal(again, fresh()) and again.sum() > first.sum()

@@ -98,8 +98,11 @@ class ObservedSpace:
         """Raise the cells of ``points`` (inside the grid) to at least ``state``."""
         inside, ijk = self._index(points)
         if inside.any():
+            # the reach depends only on SURFACE cells: marking FREE, or SURFACE where it already is, keeps it
+            # (a step marks thousands of FREE samples; redoing the dilation after each was a tenth of a step)
+            if state >= SURFACE and self._reach is not None and not np.all(self.states[ijk] == SURFACE):
+                self._reach = None
             np.maximum.at(self.states, ijk, np.uint8(state))
-            self._reach = None
 
     def mark_rays(self, origins: np.ndarray, ends: np.ndarray, stop_short_m: float) -> None:
         """``FREE`` along each segment origin -> end (world, (n, 3) each), stopping ``stop_short_m`` before
