@@ -309,6 +309,12 @@ def test_the_cached_reach_is_kept_through_free_marks_and_redone_after_new_surfac
     assert space.surface_reach() is first
     space.mark(space.lo + (np.argwhere(space.states == SURFACE)[:5] + 0.5) * 0.05, SURFACE)  # already surface
     assert space.surface_reach() is first
-    space.mark(np.array([[0.05, 0.05, 0.05]]), SURFACE)  # a new surface cell far from the others
+    before_new = space.states == SURFACE
+    space.mark(np.array([[0.05, 0.05, 0.05], [0.0, 0.5, 0.99]]), SURFACE)  # new cells, one on the grid's edge
     again = space.surface_reach()
     assert again is not first and np.array_equal(again, fresh()) and again.sum() > first.sum()
+    assert np.array_equal(first, binary_dilation(before_new, np.ones((3, 3, 3), bool)))  # the old array kept
+    for _ in range(5):  # many small marks, each grown onto the cached reach, agree with one dilation at the end
+        space.mark(rng.uniform(0, 1, (7, 3)), SURFACE)
+        space.mark(rng.uniform(0, 1, (50, 3)), FREE)
+    assert np.array_equal(space.surface_reach(), fresh())

@@ -98,10 +98,13 @@ class ObservedSpace:
         """Raise the cells of ``points`` (inside the grid) to at least ``state``."""
         inside, ijk = self._index(points)
         if inside.any():
-            # the reach depends only on SURFACE cells: marking FREE, or SURFACE where it already is, keeps it
-            # (a step marks thousands of FREE samples; redoing the dilation after each was a tenth of a step)
-            if state >= SURFACE and self._reach is not None and not np.all(self.states[ijk] == SURFACE):
-                self._reach = None
+            # the reach depends only on SURFACE cells: marking FREE keeps it, new SURFACE cells add their own
+            # neighbourhoods to it (the dilation of a union is the union of the dilations); redoing the whole
+            # dilation after every mark was a tenth of an ``rl_small`` step
+            if state >= SURFACE and self._reach is not None:
+                new = self.states[ijk] != SURFACE
+                if new.any():
+                    self._reach = _grown_reach(self._reach, np.stack(ijk, axis=1)[new])
             np.maximum.at(self.states, ijk, np.uint8(state))
 
     def mark_rays(self, origins: np.ndarray, ends: np.ndarray, stop_short_m: float) -> None:
@@ -208,6 +211,21 @@ class ObservedSpace:
         if np.any(cells > SURFACE):
             raise ObservedSpaceError("observed space: a cell state outside unknown / free / surface")
         return cls(float(cell), origin, cells.reshape(shape).astype(np.uint8))
+
+
+_REACH_OFFSETS = np.stack(np.meshgrid(*[np.arange(-SURFACE_REACH_CELLS, SURFACE_REACH_CELLS + 1)] * 3,
+                                      indexing="ij"), axis=-1).reshape(-1, 3)
+"""The cube of cells ``binary_dilation`` with a 3x3x3 element, ``SURFACE_REACH_CELLS`` times, adds around a cell."""
+
+
+def _grown_reach(reach: np.ndarray, cells: np.ndarray) -> np.ndarray:
+    """A copy of ``reach`` with the neighbourhood of each (n, 3) cell set (clipped to the grid, as the dilation's
+    zero border clips): callers may hold the old array, so it is not changed."""
+    near = (cells[:, None, :] + _REACH_OFFSETS[None]).reshape(-1, 3)
+    near = near[np.all((near >= 0) & (near < np.array(reach.shape)), axis=1)]
+    grown = reach.copy()
+    grown[tuple(near.T)] = True
+    return grown
 
 
 def observe_frame(space: ObservedSpace, points: np.ndarray, camera: np.ndarray, lo: np.ndarray, hi: np.ndarray,
