@@ -12,6 +12,7 @@ overrides, so a name means the same episode everywhere (scene presets such as ``
 | `full`    | 200            | 320x240 | 10             | every 2  | 20                    | MPNet        |
 | `rl_tiny` | 16             | 80x60   | 2              | every 2  | 1                     | MiniLM       |
 | `rl_small`| 60             | 80x60   | 5              | every 5  | 3                     | MiniLM       |
+| `rl_lite` | 36             | 80x60   | 3              | every 3  | 1                     | MiniLM       |
 | `rl`      | 120            | 160x120 | 5              | every 5  | 3                     | MiniLM       |
 
 ``full`` is the paper's setting, ``fast`` the measured one, ``demo`` the paths of ``fast`` with half the
@@ -19,7 +20,10 @@ keyframes and coarser meshes (``make demo`` in about 5 minutes here), ``tiny`` f
 ``rl``, ``rl_small`` and ``rl_tiny`` are RL-sized: a few iterations per step and the small MiniLM encoder.
 ``rl`` (the env's default) is 24 steps of a few seconds; ``rl_small`` (12 steps of 1-2 s) is where
 ``openmulti train`` learns: there ``always``, ``never`` and fixed-rate schedules end points apart
-(``benchmarks/bench_schedules.py``); ``rl_tiny`` (a tenth of a second a step) is for tests.
+(``benchmarks/bench_schedules.py``); ``rl_lite`` is the same 12 steps on the same paths with a third fewer frames,
+one iteration per keyframe and half the rays and refit steps (issue 47: about 1.6x fewer seconds a step; whether it
+ranks schedules as ``fast`` does is ``benchmarks/transfer_check.py --cheap rl_lite``, docs/transfer.md);
+``rl_tiny`` (a tenth of a second a step) is for tests.
 """
 
 from __future__ import annotations
@@ -71,6 +75,10 @@ PRESETS: dict[str, Experiment] = {p.preset: p for p in (
                                       rays_per_structure=96, refit_steps=20),
             frames_per_agent=60, image=(80, 60), consistency_iterations=1, rays_per_pose=64, text_encoder="minilm",
             map_size=48),
+    _preset("rl_lite", MappingConfig(keyframe_every=3, iterations_per_keyframe=1, rays_per_object=24,
+                                     rays_per_structure=48, refit_steps=5),
+            frames_per_agent=36, image=(80, 60), frames_per_round=3, consistency_iterations=1, rays_per_pose=32,
+            text_encoder="minilm", map_size=48),
     _preset("rl", MappingConfig(keyframe_every=5, iterations_per_keyframe=3, rays_per_object=48,
                                 rays_per_structure=96, refit_steps=20),
             image=(160, 120), consistency_iterations=1, rays_per_pose=64, text_encoder="minilm"),
@@ -83,6 +91,7 @@ PRESET_SUMMARIES: dict[str, str] = {
     "full": "the paper's setting: 200 frames per agent, a keyframe every 2nd",
     "rl_tiny": "RL tests: 2 agents in the tiny room, 16 frames at 80x60, 1 iteration per keyframe",
     "rl_small": "RL training: 60 frames per agent at 80x60 (12 steps), where schedules end points apart",
+    "rl_lite": "cheaper training: rl_small's 12 steps with 36 frames, 1 iteration per keyframe, half the rays",
     "rl": "RL-sized: room0, 120 frames at 160x120, 3 iterations per keyframe, about a second per step",
 }
 """One line per preset for ``--help`` and the docs."""

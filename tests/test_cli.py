@@ -144,3 +144,21 @@ def test_fewer_culling_viewpoints_score_the_same_maps_from_a_subset(tmp_path):
     one = json.loads((out / "metrics.json").read_text())
     assert one["config"]["run"]["culling_viewpoint_stride"] == 100000
     assert one["mean"]["comp_ratio"] < every["comp_ratio"]
+
+
+def test_members_scored_side_by_side_give_the_figures_and_meshes_of_scoring_in_turn(tmp_path):
+    """The evaluation scores members on the run's worker threads: the same metrics and the same mesh files as
+    one member after another."""
+    import json
+
+    out = tmp_path / "map"
+    base = ["run", "--scene", "tiny", "--agents", "3", "--preset", "tiny", "--policy", "always", "--out", str(out),
+            "--device", "cpu", "--run.max-rounds", "2", "--run.plots", "false", "--run.threads", "1"]
+    assert main(base + ["--run.workers", "1"]) == 0
+    in_turn = json.loads((out / "metrics.json").read_text())
+    meshes = {p.name: p.read_bytes() for p in (out / "meshes").glob("*.ply")}
+    assert main(base + ["--run.workers", "3"]) == 0
+    side_by_side = json.loads((out / "metrics.json").read_text())
+    assert side_by_side["config"]["run"]["workers"] == 3
+    assert side_by_side["agents"] == in_turn["agents"] and side_by_side["mean"] == in_turn["mean"]
+    assert {p.name: p.read_bytes() for p in (out / "meshes").glob("*.ply")} == meshes

@@ -12,7 +12,9 @@ on the same folder resumes after the last saved round; other settings start agai
 
 from __future__ import annotations
 
+import threading
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Callable
@@ -179,6 +181,28 @@ def run_rounds(team: Team, schedule: Schedule, checkpoint: Path, config: RunConf
     return reports
 
 
+class TakingTurns:
+    """An encoder whose calls take turns: members scored on threads share the run's one text (and image) encoder,
+    whose caches are not made for concurrent writers."""
+
+    def __init__(self, encoder):
+        self.encoder, self.lock = encoder, threading.Lock()
+
+    @classmethod
+    def wrap(cls, encoder):
+        return None if encoder is None else cls(encoder)
+
+    def __getattr__(self, name: str):
+        attr = getattr(self.encoder, name)
+        if not callable(attr):
+            return attr
+
+        def in_turn(*args, **kwargs):
+            with self.lock:
+                return attr(*args, **kwargs)
+        return in_turn
+
+
 def evaluate_team(source: Source, record: SourceRecord, gt: GroundTruth, team: Team, config: RunConfig) -> dict:
     """Mesh, cull and score every agent's own map against ``gt``; the team map's semantics; code books;
     pictures."""
@@ -188,14 +212,26 @@ def evaluate_team(source: Source, record: SourceRecord, gt: GroundTruth, team: T
     gt.mesh.export(out / "meshes" / gt.file_name)
     per_agent, maps = {}, []
     reference = SampledSurface.of(gt.mesh, seed=seed)  # every agent is scored against the same points
-    for member in tqdm(team.local_members(), desc="evaluating", unit="agent", disable=not config.progress):
-        per_agent[member.name], own = score_member(member, gt, views, seed, out, source.text_encoder,
-                                                   source.image_encoder, record.caption,
-                                                   frames=source.agent_frames(member.index, DEPTH_CHECK_EVERY),
-                                                   heldout=heldout_frames(source, member.index, config.team),
-                                                   reference=reference, viewpoint_stride=config.culling_viewpoint_stride)
+    members = team.local_members()
+    # each member's inputs are read here, in turn (the source's caches are not shared across threads); the scoring
+    # itself (meshing, culling, scores: one member's state each) runs on the run's worker threads, whose torch
+    # threads split the cores: in turn, a member's meshing left all but one core idle
+    inputs = {m.name: (source.agent_frames(m.index, DEPTH_CHECK_EVERY), heldout_frames(source, m.index, config.team))
+              for m in members}
+    text_encoder, image_encoder = TakingTurns.wrap(source.text_encoder), TakingTurns.wrap(source.image_encoder)
+
+    def score(member):
+        frames, heldout = inputs[member.name]
+        return score_member(member, gt, views, seed, out, text_encoder, image_encoder, record.caption, frames=frames,
+                            heldout=heldout, reference=reference, viewpoint_stride=config.culling_viewpoint_stride)
+
+    with ThreadPoolExecutor(max(1, min(config.workers, len(members))), thread_name_prefix="scoring") as pool:
+        scored = list(tqdm(pool.map(score, members), total=len(members), desc="evaluating", unit="agent",
+                           disable=not config.progress))
+    for member, (metrics, own) in zip(members, scored):
+        per_agent[member.name] = metrics
         maps.append(own)
-        if config.plots:
+        if config.plots:  # matplotlib is not thread-safe: the pictures in turn
             save_rendered_views(out / "plots" / f"rendered_views_{member.name}.png", source, member,
                                 f"{source.name} {member.name}: sensor vs map", own.mesh)
     union = team_semantics(maps, gt.semantic, out)

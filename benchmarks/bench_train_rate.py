@@ -1,0 +1,125 @@
+"""Env steps per hour of ``openmulti train``, side by side: code checkouts x presets, alternated.
+
+Issue 47's headline target is training throughput as a user sees it: the whole ``openmulti train`` command (PPO
+updates, resets, world changes, the text encoder's first load), not one env's step. Each ``--run LABEL=CHECKOUT:PRESET``
+runs the same command with the same PPO settings from CHECKOUT's code (``PYTHONPATH``: a git worktree of an older
+commit, or ``.``), in a fresh run folder, and reports env steps per hour and the ratio to the first run. Every
+training world is built into the world cache once before timing (``--no-warm`` skips that), so no run pays for
+building what another run built.
+
+    git worktree add /tmp/base 6892348
+    .venv/bin/python benchmarks/bench_train_rate.py --run base=/tmp/base:rl_small --run head=.:rl_small \\
+        --run lite=.:rl_lite --env-steps 384 --repeats 1 --out runs/bench_train_rate
+
+Rows are appended to ``--out/rows.jsonl`` as each run ends (a rerun skips what is there).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+TRAIN_SCENES = tuple(f"random:{k}" for k in range(100, 116))
+"""``openmulti train``'s default worlds (``openmulti_env.runs.train.DEFAULT_TRAIN_SCENES``)."""
+
+
+@dataclass(frozen=True)
+class RunSpec:
+    label: str
+    checkout: Path
+    preset: str
+
+    @classmethod
+    def parse(cls, text: str) -> "RunSpec":
+        label, sep, rest = text.partition("=")
+        checkout, sep2, preset = rest.rpartition(":")
+        if not (sep and sep2 and label and preset):
+            raise SystemExit(f"--run {text!r}: expected LABEL=CHECKOUT:PRESET, e.g. head=.:rl_small")
+        path = Path(checkout).resolve()
+        if not (path / "openmulti_env").is_dir():
+            raise SystemExit(f"--run {text!r}: {path} holds no openmulti_env package")
+        return cls(label, path, preset)
+
+    def environ(self) -> dict:
+        return {**os.environ, "PYTHONPATH": str(self.checkout)}
+
+
+def warm(spec: RunSpec) -> None:
+    """Build (or find cached) every training world with the checkout's own code; check it imports that code."""
+    code = ("import openmulti_env, sys; from openmulti_env import parallel_env\n"
+            f"assert openmulti_env.__file__.startswith({str(spec.checkout)!r}), openmulti_env.__file__\n"
+            f"for s in {list(TRAIN_SCENES)!r}:\n"
+            f"    e = parallel_env(preset={spec.preset!r}, scene=s); e.reset(seed=0); e.close()\n")
+    start = time.perf_counter()
+    subprocess.run([sys.executable, "-c", code], env=spec.environ(), check=True, cwd=spec.checkout,
+                   stdout=subprocess.DEVNULL)
+    print(f"[bench_train_rate] {spec.label}: worlds ready in {time.perf_counter() - start:.0f} s", flush=True)
+
+
+def timed_run(spec: RunSpec, env_steps: int, workers: int, extra: list[str]) -> dict:
+    """One whole ``openmulti train`` in a fresh folder: wall seconds and env steps per hour."""
+    with tempfile.TemporaryDirectory(prefix="train_rate_") as out:
+        command = [sys.executable, "-c", "from openmulti_env.runs.cli import main; raise SystemExit(main())", "train",
+                   "--preset", spec.preset, "--env-steps", str(env_steps), "--workers", str(workers),
+                   "--out", out, *extra]
+        start = time.perf_counter()
+        done = subprocess.run(command, env=spec.environ(), cwd=spec.checkout, capture_output=True, text=True)
+        wall = time.perf_counter() - start
+        if done.returncode:
+            raise SystemExit(f"{spec.label}: openmulti train failed ({done.returncode}):\n{done.stderr[-3000:]}")
+        log = Path(out) / "log.csv"
+        episodes = max(0, len(log.read_text().splitlines()) - 1) if log.exists() else 0
+    return {"label": spec.label, "checkout": str(spec.checkout), "preset": spec.preset, "env_steps": env_steps,
+            "workers": workers, "episodes": episodes, "wall_s": wall, "env_steps_per_hour": env_steps * 3600 / wall}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--run", action="append", required=True, help="LABEL=CHECKOUT:PRESET (repeatable; the first "
+                        "is the reference of the ratios)")
+    parser.add_argument("--env-steps", type=int, default=384)
+    parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--repeats", type=int, default=1)
+    parser.add_argument("--no-warm", action="store_true")
+    parser.add_argument("--out", default="runs/bench_train_rate")
+    parser.add_argument("extra", nargs="*", help="after --: more options for every openmulti train")
+    args = parser.parse_args()
+    if args.env_steps < 1 or args.repeats < 1:
+        raise SystemExit("--env-steps and --repeats must be at least 1")
+    specs = [RunSpec.parse(r) for r in args.run]
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    rows_file = out / "rows.jsonl"
+    rows = [json.loads(x) for x in rows_file.read_text().splitlines() if x.strip()] if rows_file.exists() else []
+    if not args.no_warm:
+        for spec in specs:
+            warm(spec)
+    for repeat in range(args.repeats):
+        for spec in specs:  # alternated: each repeat runs every spec once, in order
+            if any(r["label"] == spec.label and r["repeat"] == repeat and r["env_steps"] == args.env_steps for r in rows):
+                continue
+            row = {**timed_run(spec, args.env_steps, args.workers, args.extra), "repeat": repeat, **asdict(spec),
+                   "checkout": str(spec.checkout)}
+            rows.append(row)
+            with rows_file.open("a") as f:
+                f.write(json.dumps(row) + "\n")
+            print(f"[bench_train_rate] {spec.label} ({spec.preset}) repeat {repeat}: {row['wall_s']:.0f} s, "
+                  f"{row['env_steps_per_hour']:.0f} env steps/h", flush=True)
+    ref = [r["env_steps_per_hour"] for r in rows if r["label"] == specs[0].label and r["env_steps"] == args.env_steps]
+    print("| run | preset | env steps/h (each repeat) | ratio to " + specs[0].label + " |\n|---|---|---|---|")
+    for spec in specs:
+        rates = [r["env_steps_per_hour"] for r in rows if r["label"] == spec.label and r["env_steps"] == args.env_steps]
+        ratio = (sum(rates) / len(rates)) / (sum(ref) / len(ref)) if rates and ref else float("nan")
+        print(f"| {spec.label} | {spec.preset} | {' / '.join(f'{x:.0f}' for x in rates)} | {ratio:.2f} |")
+
+
+if __name__ == "__main__":
+    main()
