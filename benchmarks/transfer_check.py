@@ -97,13 +97,15 @@ def fast_runs(policies: list[str], root: Path, rows_file: Path) -> list[dict]:
     return rows
 
 
-def rank_agreement(cheap: list[dict], fast: list[dict], setting: str) -> list[dict]:
-    """Per cell: the schedules both sides have, their completions, and the Spearman correlation."""
+def rank_agreement(cheap: list[dict], fast: list[dict], setting: str, against: str | None = None) -> list[dict]:
+    """Per cell: the schedules both sides have, their completions, and the Spearman correlation (``against``: a
+    second cheap setting in place of the fast runs, e.g. whether a cheaper episode ranks as ``rl_small`` does)."""
     out = []
     for scene, seed in CELLS:
         c = {r["policy"]: r["completion"] for r in cheap if (r["setting"], r["scene"], r["seed"]) == (setting, scene, seed)}
         f = {r["policy"]: r["comp_ratio"] for r in fast
-             if (r["scene"], r["seed"], r["scenario"]) == (scene, seed, "unlimited")}
+             if (r["scene"], r["seed"], r["scenario"]) == (scene, seed, "unlimited")} if against is None else \
+            {r["policy"]: r["completion"] for r in cheap if (r["setting"], r["scene"], r["seed"]) == (against, scene, seed)}
         both = [p for p in c if p in f]
         rho = float(spearmanr([c[p] for p in both], [f[p] for p in both]).statistic) if len(both) >= 3 else None
         out.append({"scene": scene, "seed": seed, "policies": both, "cheap": [c[p] for p in both],
@@ -111,15 +113,17 @@ def rank_agreement(cheap: list[dict], fast: list[dict], setting: str) -> list[di
     return out
 
 
-def report(cells: list[dict], setting: str, out: Path) -> None:
-    """Markdown table (per cell: schedules compared, Spearman) and the scatter picture."""
+def report(cells: list[dict], setting: str, out: Path, against: str | None = None) -> None:
+    """Markdown table (per cell: schedules compared, Spearman) and the scatter picture, named after the setting
+    (``transfer_<setting>.md`` / ``.png``; ``..._vs_<against>`` for two cheap settings)."""
     import matplotlib  # noqa: PLC0415
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt  # noqa: PLC0415
 
     rhos = [c["spearman"] for c in cells if c["spearman"] is not None and np.isfinite(c["spearman"])]
-    lines = [f"Cheap episode `{setting}` against `fast` (mesh metric), unlimited links.", "",
+    other = "`fast` (mesh metric)" if against is None else f"the cheap episode `{against}`"
+    lines = [f"Cheap episode `{setting}` against {other}, unlimited links.", "",
              "| cell | schedules on both sides | Spearman |", "|---|---|---|"]
     for c in cells:
         rho = "-" if c["spearman"] is None else f"{c['spearman']:.2f}"
@@ -133,11 +137,13 @@ def report(cells: list[dict], setting: str, out: Path) -> None:
         rho = "-" if c["spearman"] is None else f"{c['spearman']:.2f}"
         ax.set_title(f"{c['scene']} seed {c['seed']}: Spearman {rho}")
         ax.set_xlabel(f"cheap episode ({setting}) completion %")
-        ax.set_ylabel("fast run completion % (mesh, 5 cm)")
+        ax.set_ylabel("fast run completion % (mesh, 5 cm)" if against is None else f"{against} completion %")
     fig.tight_layout()
     out.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out / "transfer.png", dpi=110)
-    (out / "transfer.md").write_text("\n".join(lines) + "\n")
+    name = "transfer_" + setting.replace(",", "_").replace("=", "") + ("" if against is None else f"_vs_{against}")
+    fig.savefig(out / f"{name}.png", dpi=110)
+    plt.close(fig)
+    (out / f"{name}.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
 
 
@@ -150,13 +156,14 @@ def main() -> None:
     parser.add_argument("--fast-rows", default="docs/schedules/headroom_fast/rows.jsonl")
     parser.add_argument("--run-fast", action="store_true", help="also run the missing fast cells")
     parser.add_argument("--report", action="store_true", help="only the table and the picture")
+    parser.add_argument("--against", help="with --report: rank against this second cheap setting instead of fast")
     parser.add_argument("--out", default="docs/schedules/transfer")
     args = parser.parse_args()
     cheap_file, fast_file = Path(args.cheap_rows), Path(args.fast_rows)
     cheap = read_rows(cheap_file) if args.report else cheap_episodes(args.cheap, args.policies, cheap_file)
     fast = fast_runs(args.policies, Path(args.fast_root), fast_file) if args.run_fast and not args.report \
         else read_rows(fast_file)
-    report(rank_agreement(cheap, fast, args.cheap), args.cheap, Path(args.out))
+    report(rank_agreement(cheap, fast, args.cheap, args.against), args.cheap, Path(args.out), args.against)
 
 
 if __name__ == "__main__":
