@@ -9,7 +9,7 @@ building what another run built.
 
     git worktree add /tmp/base 6892348
     .venv/bin/python benchmarks/bench_train_rate.py --run base=/tmp/base:rl_small --run head=.:rl_small \\
-        --run lite=.:rl_lite --env-steps 384 --repeats 1 --out runs/bench_train_rate
+        --run lite=.:rl_lite --env-steps 512 --repeats 1 --out runs/bench_train_rate
 
 Rows are appended to ``--out/rows.jsonl`` as each run ends (a rerun skips what is there).
 """
@@ -77,15 +77,37 @@ def timed_run(spec: RunSpec, env_steps: int, workers: int, extra: list[str]) -> 
             raise SystemExit(f"{spec.label}: openmulti train failed ({done.returncode}):\n{done.stderr[-3000:]}")
         log = Path(out) / "log.csv"
         episodes = max(0, len(log.read_text().splitlines()) - 1) if log.exists() else 0
+        ran = steps_run(Path(out) / "latest.json")
+    if ran is None:
+        raise SystemExit(f"{spec.label}: the run wrote no env step count in latest.json")
     return {"label": spec.label, "checkout": str(spec.checkout), "preset": spec.preset, "env_steps": env_steps,
-            "workers": workers, "episodes": episodes, "wall_s": wall, "env_steps_per_hour": env_steps * 3600 / wall}
+            "env_steps_run": ran, "workers": workers, "episodes": episodes, "wall_s": wall,
+            "env_steps_per_hour": ran * 3600 / wall}
+
+
+def steps_run(policy_file: Path) -> int | None:
+    """The env steps the run made (its record in the policy file): PPO learns whole rollouts in chunks
+    (``--chunk-env-steps``), so a run may make more than it was asked for."""
+    if not policy_file.exists():
+        return None
+    stack = [json.loads(policy_file.read_text())]
+    while stack:
+        node = stack.pop()
+        if isinstance(node, dict):
+            if isinstance(node.get("env_steps"), int):
+                return node["env_steps"]
+            stack.extend(node.values())
+        elif isinstance(node, list):
+            stack.extend(node)
+    return None
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--run", action="append", required=True, help="LABEL=CHECKOUT:PRESET (repeatable; the first "
                         "is the reference of the ratios)")
-    parser.add_argument("--env-steps", type=int, default=384)
+    parser.add_argument("--env-steps", type=int, default=512, help="asked of each run (it makes whole PPO "
+                        "rollouts in chunks of --chunk-env-steps, 512 by default: the rate uses what it made)")
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--repeats", type=int, default=1)
     parser.add_argument("--no-warm", action="store_true")

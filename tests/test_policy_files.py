@@ -315,3 +315,23 @@ def test_a_training_folder_made_before_worlds_per_worker_still_resumes():
               "command": "an older command line"}
     assert same_run(before, now)
     assert not same_run(before, {**now, "train": {**now["train"], "worlds_per_worker": 2}})
+
+
+def test_training_envs_share_the_cores_among_worker_processes_without_changing_the_run(tmp_path, monkeypatch):
+    """Each worker's env takes cores / workers agent threads (two processes of two threads each kept four
+    threads on two cores); the setting changes speed only, so it stays out of the run's identity."""
+    import policies.train
+    from mapping.runtime import available_cores
+    from openmulti_env.runs.cli import main
+
+    seen = {}
+
+    def fake_train(factory, config, out, record, progress=True):
+        seen.update(factory=factory, record=record, config=config)
+        return tmp_path / "best.json"
+
+    monkeypatch.setattr(policies.train, "train", fake_train)
+    assert main(["train", "--preset", "rl_tiny", "--agents", "2", "--workers", "1", "--env-steps", "8",
+                 "--scenes", "tiny", "--out", str(tmp_path / "t")]) == 0
+    assert seen["factory"].env_kwargs["run__workers"] == max(1, available_cores() // seen["config"].workers)
+    assert "run__workers" not in json.dumps(seen["record"]["env"])

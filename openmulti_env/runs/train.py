@@ -16,6 +16,7 @@ import numpy as np
 from pettingzoo import ParallelEnv
 
 from openmulti_env.environment.parallel_env import OpenMultiParallelEnv
+from mapping.runtime import available_cores
 
 REPORTED_SCENES = ("room0", "office0", "room2")
 """The trade-off table's scenes: a training list may not hold them."""
@@ -146,6 +147,15 @@ def env_settings(args) -> tuple[dict, "Experiment"]:
     return kwargs, env_config(**kwargs)
 
 
+def agent_workers_per_env(workers: int) -> int:
+    """Agent threads of each training env: the cores shared by the worker processes. An env alone takes one
+    per core, and two worker processes with two agent threads each kept four threads on two cores."""
+    return max(1, available_cores() // max(1, workers))
+
+
+NOT_IDENTITY = {"run__workers"}
+"""Env keywords that change how fast an episode runs, never what it gives: a run folder resumes across them."""
+
 SUMMARISED = {"world__num_agents", "env__reward", "env__comm_cost_per_mb", "channel__budget_mb", "env__horizon"}
 
 
@@ -155,7 +165,7 @@ def env_summary(tree, env_kwargs: dict) -> dict:
     summary = {"preset": tree.preset, "num_agents": tree.num_agents, "reward": tree.env.reward,
                "comm_cost_per_mb": tree.env.comm_cost_per_mb, "comm_budget_mb": tree.channel.budget_mb,
                **({"horizon": tree.env.horizon} if tree.env.horizon else {})}
-    others = {k: v for k, v in env_kwargs.items() if k not in SUMMARISED | {"preset", "config"}}
+    others = {k: v for k, v in env_kwargs.items() if k not in SUMMARISED | NOT_IDENTITY | {"preset", "config"}}
     return {**summary, **({"overrides": others} if others else {})}
 
 
@@ -183,6 +193,8 @@ def train_command(args) -> int:
     scenes = tuple(args.scenes) if args.scenes else DEFAULT_TRAIN_SCENES
     check_training_scenes(scenes)
     env_kwargs, tree = env_settings(args)
+    if tree.run.workers is None:  # the worker processes split the cores: each env's agents take turns on its own
+        env_kwargs["run__workers"] = agent_workers_per_env(config.workers)
     factory = WorkerEnvs(scenes, config.workers * config.worlds_per_worker, args.episodes_per_world, env_kwargs)
     cost = tree.env.comm_cost_per_mb
     record = {"command": "openmulti train " + " ".join(shlex.quote(a) for a in sys.argv[2:]), "scenes": list(scenes),
