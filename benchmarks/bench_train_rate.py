@@ -23,7 +23,7 @@ import subprocess
 import sys
 import tempfile
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -124,21 +124,26 @@ def main() -> None:
     if not args.no_warm:
         for spec in specs:
             warm(spec)
+    def same(row: dict, spec: RunSpec) -> bool:
+        """A row of this spec under this command's settings (another --workers or extra option is another run)."""
+        return (row["label"], row["checkout"], row["preset"], row["env_steps"], row["workers"], row.get("extra", [])) \
+            == (spec.label, str(spec.checkout), spec.preset, args.env_steps, args.workers, args.extra)
+
     for repeat in range(args.repeats):
         for spec in specs:  # alternated: each repeat runs every spec once, in order
-            if any(r["label"] == spec.label and r["repeat"] == repeat and r["env_steps"] == args.env_steps for r in rows):
+            if any(same(r, spec) and r["repeat"] == repeat for r in rows):
                 continue
-            row = {**timed_run(spec, args.env_steps, args.workers, args.extra), "repeat": repeat, **asdict(spec),
-                   "checkout": str(spec.checkout)}
+            row = {**timed_run(spec, args.env_steps, args.workers, args.extra), "repeat": repeat,
+                   "extra": args.extra}
             rows.append(row)
             with rows_file.open("a") as f:
                 f.write(json.dumps(row) + "\n")
             print(f"[bench_train_rate] {spec.label} ({spec.preset}) repeat {repeat}: {row['wall_s']:.0f} s, "
                   f"{row['env_steps_per_hour']:.0f} env steps/h", flush=True)
-    ref = [r["env_steps_per_hour"] for r in rows if r["label"] == specs[0].label and r["env_steps"] == args.env_steps]
+    ref = [r["env_steps_per_hour"] for r in rows if same(r, specs[0])]
     print("| run | preset | env steps/h (each repeat) | ratio to " + specs[0].label + " |\n|---|---|---|---|")
     for spec in specs:
-        rates = [r["env_steps_per_hour"] for r in rows if r["label"] == spec.label and r["env_steps"] == args.env_steps]
+        rates = [r["env_steps_per_hour"] for r in rows if same(r, spec)]
         ratio = (sum(rates) / len(rates)) / (sum(ref) / len(ref)) if rates and ref else float("nan")
         print(f"| {spec.label} | {spec.preset} | {' / '.join(f'{x:.0f}' for x in rates)} | {ratio:.2f} |")
 

@@ -8,7 +8,7 @@ completion ratio of
 - the real one: ``openmulti run --preset fast`` on the same cell, the mesh metric (the headroom study's runs and
   rows, shared: ``--fast-root``, ``--fast-rows``).
 Per cell the Spearman rank correlation of the two completions over the schedules both sides have; the report
-gives each cell's, their mean, and a scatter picture (``--out/transfer.png``).
+gives each cell's, their mean, and a scatter picture (``--out/transfer_<setting>.png``).
 
     .venv/bin/python benchmarks/transfer_check.py                   # cheap episodes that are missing, then report
     .venv/bin/python benchmarks/transfer_check.py --run-fast        # also the missing fast runs (about 10 min each)

@@ -20,8 +20,9 @@ keyframes and coarser meshes (``make demo`` in about 5 minutes here), ``tiny`` f
 ``rl``, ``rl_small`` and ``rl_tiny`` are RL-sized: a few iterations per step and the small MiniLM encoder.
 ``rl`` (the env's default) is 24 steps of a few seconds; ``rl_small`` (12 steps of 1-2 s) is where
 ``openmulti train`` learns: there ``always``, ``never`` and fixed-rate schedules end points apart
-(``benchmarks/bench_schedules.py``); ``rl_lite`` is the same 12 steps on the same paths with a third fewer frames,
-one iteration per keyframe and half the rays and refit steps (issue 47: about 1.6x fewer seconds a step; whether it
+(``benchmarks/bench_schedules.py``); ``rl_lite`` is 12 steps as well with 40 % fewer frames (so shorter tours: the
+planner takes at most a third of the frames as key views, 12 against 20, about 30 % less path), one iteration per
+keyframe, half the rays and a quarter of the refit steps (issue 47: about 1.5x the env steps an hour; whether it
 ranks schedules as ``fast`` does is ``benchmarks/transfer_check.py --cheap rl_lite``, docs/transfer.md);
 ``rl_tiny`` (a tenth of a second a step) is for tests.
 """
@@ -91,7 +92,7 @@ PRESET_SUMMARIES: dict[str, str] = {
     "full": "the paper's setting: 200 frames per agent, a keyframe every 2nd",
     "rl_tiny": "RL tests: 2 agents in the tiny room, 16 frames at 80x60, 1 iteration per keyframe",
     "rl_small": "RL training: 60 frames per agent at 80x60 (12 steps), where schedules end points apart",
-    "rl_lite": "cheaper training: rl_small's 12 steps with 36 frames, 1 iteration per keyframe, half the rays",
+    "rl_lite": "cheaper training: 12 steps of 36 frames (shorter tours), 1 iteration per keyframe, half the rays",
     "rl": "RL-sized: room0, 120 frames at 160x120, 3 iterations per keyframe, about a second per step",
 }
 """One line per preset for ``--help`` and the docs."""

@@ -27,7 +27,7 @@ from mapping.evaluate import SampledSurface
 from mapping.pipeline.records import as_record, forget_stale_checkpoints, plain, write_json_atomic
 from mapping.pipeline.scoring import DEPTH_CHECK_EVERY, mean_metrics, score_member, team_semantics
 from mapping.pipeline.source import GroundTruth, Source, SourceRecord
-from mapping.runtime import set_threads
+from mapping.runtime import set_threads, torch_threads
 from mapping.team import AgentSnapshot, ChannelConfig, RoundPlan, Team, TeamConfig
 
 Schedule = Callable[[Team, list[AgentSnapshot]], RoundPlan]
@@ -214,8 +214,9 @@ def evaluate_team(source: Source, record: SourceRecord, gt: GroundTruth, team: T
     reference = SampledSurface.of(gt.mesh, seed=seed)  # every agent is scored against the same points
     members = team.local_members()
     # each member's inputs are read here, in turn (the source's caches are not shared across threads); the scoring
-    # itself (meshing, culling, scores: one member's state each) runs on the run's worker threads, whose torch
-    # threads split the cores: in turn, a member's meshing left all but one core idle
+    # itself (meshing, culling, scores: one member's state each) runs on the run's worker threads, the torch threads
+    # split among them (every core each would run workers x cores threads); what overlaps is mostly the NumPy and
+    # Python around the networks, which in turn left the other cores idle
     inputs = {m.name: (source.agent_frames(m.index, DEPTH_CHECK_EVERY), heldout_frames(source, m.index, config.team))
               for m in members}
     text_encoder, image_encoder = TakingTurns.wrap(source.text_encoder), TakingTurns.wrap(source.image_encoder)
@@ -225,7 +226,9 @@ def evaluate_team(source: Source, record: SourceRecord, gt: GroundTruth, team: T
         return score_member(member, gt, views, seed, out, text_encoder, image_encoder, record.caption, frames=frames,
                             heldout=heldout, reference=reference, viewpoint_stride=config.culling_viewpoint_stride)
 
-    with ThreadPoolExecutor(max(1, min(config.workers, len(members))), thread_name_prefix="scoring") as pool:
+    side_by_side = max(1, min(config.workers, len(members)))
+    with torch_threads(config.threads, workers=side_by_side), \
+            ThreadPoolExecutor(side_by_side, thread_name_prefix="scoring") as pool:
         scored = list(tqdm(pool.map(score, members), total=len(members), desc="evaluating", unit="agent",
                            disable=not config.progress))
     for member, (metrics, own) in zip(members, scored):

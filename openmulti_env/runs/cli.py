@@ -309,8 +309,8 @@ and the shipped policy's run (about an hour; policies/trained/README.md records 
   openmulti train --preset rl_small --env-steps 4096 --workers 2 --comm-cost-per-mb 0.01 --out runs/train_rl_small
 --workers is at most one per core; --worlds-per-worker K steps K worlds in each worker in turn (more worlds per
 update, not more steps per hour: peak 1.13 GB for one rl_small world in a process, 0.87 GB each for two, 0.63 GB
-each for four; docs/profile.md), e.g. --workers 2 --worlds-per-worker 2 on 8 GB. --preset rl_lite is the same
-12 steps 1.5x faster (about 3,000 env steps an hour here against 2,000 at rl_small); whether it ranks schedules as `fast` does
+each for four; docs/profile.md), e.g. --workers 2 --worlds-per-worker 2 on 8 GB. --preset rl_lite is 12 steps on
+shorter tours, 1.5x faster (about 3,000 env steps an hour here against 2,000 at rl_small); whether it ranks schedules as `fast` does
 is docs/transfer.md (so far on one complete cell: 0.80, rl_small 0.67).
 On a cluster: RLlib's PPO with one env runner per core (the same settings, run folder and policy files),
   openmulti train --backend rllib --ray auto --workers 32 --env-steps 200000 --out runs/train_cluster

@@ -194,7 +194,8 @@ def train_command(args) -> int:
     check_training_scenes(scenes)
     env_kwargs, tree = env_settings(args)
     if tree.run.workers is None:  # the worker processes split the cores: each env's agents take turns on its own
-        env_kwargs["run__workers"] = agent_workers_per_env(config.workers)
+        # (a Ray cluster's env runners get one CPU each, whatever this machine has)
+        env_kwargs["run__workers"] = 1 if getattr(args, "ray", None) else agent_workers_per_env(config.workers)
     factory = WorkerEnvs(scenes, config.workers * config.worlds_per_worker, args.episodes_per_world, env_kwargs)
     cost = tree.env.comm_cost_per_mb
     record = {"command": "openmulti train " + " ".join(shlex.quote(a) for a in sys.argv[2:]), "scenes": list(scenes),
