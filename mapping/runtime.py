@@ -50,12 +50,17 @@ def available_cores() -> int:
         return os.cpu_count() or 1
 
 
+def cores_each(workers: int) -> int:
+    """This machine's cores shared among ``workers`` (at least 1 each)."""
+    return max(1, available_cores() // max(1, workers))
+
+
 def set_threads(threads: int | None = None, workers: int = 1) -> int:
     """Set torch's intra-op threads: ``threads``, or the machine's cores shared among ``workers``
     processes (at least 1 each). Returns the number set."""
     if threads is not None and threads < 1:
         raise ValueError(f"threads must be >= 1, got {threads}")
-    n = threads if threads is not None else max(1, available_cores() // max(1, workers))
+    n = threads if threads is not None else cores_each(workers)
     if torch.get_num_threads() != n:
         torch.set_num_threads(n)
     return n

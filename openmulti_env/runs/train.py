@@ -16,7 +16,7 @@ import numpy as np
 from pettingzoo import ParallelEnv
 
 from openmulti_env.environment.parallel_env import OpenMultiParallelEnv
-from mapping.runtime import available_cores
+from mapping.runtime import cores_each
 
 REPORTED_SCENES = ("room0", "office0", "room2")
 """The trade-off table's scenes: a training list may not hold them."""
@@ -150,7 +150,7 @@ def env_settings(args) -> tuple[dict, "Experiment"]:
 def agent_workers_per_env(workers: int) -> int:
     """Agent threads of each training env: the cores shared by the worker processes. An env alone takes one
     per core, and two worker processes with two agent threads each kept four threads on two cores."""
-    return max(1, available_cores() // max(1, workers))
+    return cores_each(workers)
 
 
 NOT_IDENTITY = {"run__workers"}
