@@ -13,10 +13,12 @@ from typing import Callable
 
 import numpy as np
 from gymnasium import spaces
+from pettingzoo import ParallelEnv
 from pettingzoo.utils.wrappers import BaseParallelWrapper
 
-ACTION_FORMS = ("entries", "round")
-"""``entries``: one Bernoulli per action entry; ``round``: one per agent, broadcast to all its entries."""
+ACTION_FORMS = ("entries", "round", "team")
+"""``entries``: one Bernoulli per action entry; ``round``: one per agent, broadcast to all its entries; ``team``:
+one for the whole team, from every agent's observation (``TeamGate``)."""
 
 
 def check_action_form(form: str) -> str:
@@ -60,3 +62,92 @@ class GatedFactory:
 
     def __call__(self, index: int) -> RoundGate:
         return RoundGate(self.env_factory(index))
+
+
+class TeamGate(ParallelEnv):
+    """The team as one agent, ``team``: it reads every agent's ``map``, ``comm`` and ``links`` stacked (agents first; and
+    ``state`` when the wrapped env's observations carry it, ``policies.critic.WithState``) and acts once a round
+    with ``MultiBinary(1)``: 1 sends everything on every entry of every agent, 0 nothing. Its reward is the
+    agents' mean (the team reward every agent gets). Deciding for the team needs each agent's observation in
+    one place: a coordinator that hears a few hundred bytes from each agent a round, which this env does not
+    count (a parameter message is tens of kilobytes per instance)."""
+
+    AGENT = "team"
+    READS = ("map", "comm", "links", "state")
+
+    def __init__(self, env):
+        self.env = env
+        self.possible_agents = [self.AGENT]
+        self.metadata = dict(getattr(env, "metadata", {}), name="openmulti_team_gate")
+        self.render_mode = None
+        members = env.possible_agents
+        self.entries = {agent: int(env.action_space(agent).n) for agent in members}
+        space = env.observation_space(members[0])
+        parts = {}
+        for key in self.READS:
+            if key not in space.spaces:
+                continue
+            sub = space.spaces[key]
+            if key == "state":
+                parts[key] = sub
+            else:
+                parts[key] = spaces.Box(float(np.min(sub.low)), float(np.max(sub.high)), (len(members),) + sub.shape,
+                                        sub.dtype)
+        self.observation_spaces = {self.AGENT: spaces.Dict(parts)}
+        self.action_spaces = {self.AGENT: spaces.MultiBinary(1)}
+
+    @property
+    def agents(self) -> list[str]:
+        return [self.AGENT] if self.env.agents else []
+
+    def observation_space(self, agent):
+        self._check(agent)
+        return self.observation_spaces[self.AGENT]
+
+    def action_space(self, agent):
+        self._check(agent)
+        return self.action_spaces[self.AGENT]
+
+    def _check(self, agent) -> None:
+        if agent != self.AGENT:
+            raise KeyError(f"unknown agent {agent!r}: the team gate has one agent, {self.AGENT!r}")
+
+    def _stack(self, observations: dict) -> dict:
+        members = list(observations)
+        out = {key: np.stack([np.asarray(observations[a][key]) for a in members])
+               for key in self.observation_spaces[self.AGENT].spaces if key != "state"}
+        if "state" in self.observation_spaces[self.AGENT].spaces:
+            out["state"] = np.asarray(observations[members[0]]["state"])
+        return {self.AGENT: out}
+
+    def reset(self, seed: int | None = None, options: dict | None = None):
+        observations, infos = self.env.reset(seed=seed, options=options)
+        return self._stack(observations), {self.AGENT: next(iter(infos.values()))}
+
+    def step(self, actions):
+        value = np.asarray(actions[self.AGENT]).reshape(-1)
+        if value.size != 1:
+            raise ValueError(f"a team-form action is one entry (the whole team sends or not), got {value.size}")
+        send = 1 if value[0] > 0.5 else 0
+        wide = {agent: np.full(self.entries[agent], send, np.int8) for agent in self.env.agents}
+        observations, rewards, terminations, truncations, infos = self.env.step(wide)
+        team = self.AGENT
+        return (self._stack(observations), {team: float(np.mean(list(rewards.values())))},
+                {team: bool(all(terminations.values()))}, {team: bool(all(truncations.values()))},
+                {team: next(iter(infos.values()))})
+
+    def state(self):
+        return self.env.state()
+
+    def close(self) -> None:
+        self.env.close()
+
+
+class TeamFactory:
+    """Picklable: ``TeamGate(env_factory(index))``."""
+
+    def __init__(self, env_factory: Callable[[int], object]):
+        self.env_factory = env_factory
+
+    def __call__(self, index: int) -> TeamGate:
+        return TeamGate(self.env_factory(index))

@@ -51,5 +51,12 @@ class LearnedPolicy:
         if maps.shape[-1] != config.map_channels or comms.shape[-1] != config.comm_size:
             raise PolicyError(f"{self.source} takes maps of {config.map_channels} channels and comm vectors of "
                               f"{config.comm_size}; the env gives {maps.shape[-1]} and {comms.shape[-1]}")
-        actions = self.network.act(maps, comms, self.rng)
+        links = None
+        if config.link_inputs:
+            if any("links" not in observations[a] for a in agents):
+                raise PolicyError(f"{self.source} reads the 'links' observation, which these observations lack")
+            links = np.stack([np.asarray(observations[a]["links"], np.float32) for a in agents])
+            if links[0].size != config.link_inputs:
+                raise PolicyError(f"{self.source} reads {config.link_inputs} link values; the env gives {links[0].size}")
+        actions = self.network.act(maps, comms, self.rng, links)
         return {a: actions[k] for k, a in enumerate(agents)}

@@ -3,8 +3,9 @@
 ``CommFeatures`` reads an observation (``policies.observation``): a small CNN over the ``map`` planes,
 pooled to a fixed 4 x 4 so any map size gives the same features, and an MLP over the ``comm`` vector;
 ``CommPolicyNetwork`` adds the action head: one logit per action entry (send parameters / share rays per
-peer; action form ``entries``) or one per agent broadcast to all its entries (``round``: send everything
-now or not, ``policies.gate``), acted on as Bernoulli draws (training) or their mode, logit > 0.
+peer; action form ``entries``), one per agent broadcast to all its entries (``round``: send everything
+now or not, ``policies.gate``), or one for the whole team from its agents' pooled features (``team``: every
+agent sends everything this round or none does), acted on as Bernoulli draws (training) or their mode, logit > 0.
 The trainer wraps ``CommFeatures`` as Stable-Baselines3's features extractor, so the weights it learns
 load here unchanged.
 """
@@ -32,8 +33,11 @@ class NetworkConfig:
     comm_features: int = 64
     features: int = 128
     action_form: str = "entries"
-    """``entries`` (a logit per action entry) or ``round`` (one logit, broadcast); files written before the
-    round form existed have no such key and are ``entries``."""
+    """``entries`` (a logit per action entry), ``round`` (one logit per agent, broadcast) or ``team`` (one for the
+    team); files written before the round form existed have no such key and are ``entries``."""
+    link_inputs: int = 0
+    """Values of the ``links`` observation read beside ``comm`` ((N - 1) x ``LINK_STATE``; 0: none, as every file
+    written before the link scenarios)."""
 
     def __post_init__(self) -> None:
         check_action_form(self.action_form)
@@ -41,7 +45,12 @@ class NetworkConfig:
     @property
     def heads(self) -> int:
         """Logits of the action head."""
-        return 1 if self.action_form == "round" else self.actions
+        return 1 if self.action_form in ("round", "team") else self.actions
+
+    @property
+    def head_inputs(self) -> int:
+        """Inputs of the action head: one agent's features, or in the ``team`` form the team's pooled (mean, max)."""
+        return 2 * self.features if self.action_form == "team" else self.features
 
     def as_dict(self) -> dict:
         return {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(self).items()}
@@ -66,17 +75,26 @@ class CommFeatures(nn.Module):
             nn.Conv2d(c1, c2, 3, stride=2, padding=1), nn.ReLU(),
             nn.Conv2d(c2, c3, 3, stride=2, padding=1), nn.ReLU(),
             nn.AdaptiveAvgPool2d(4), nn.Flatten(), nn.Linear(c3 * 16, config.map_features), nn.ReLU())
-        self.comm = nn.Sequential(nn.Linear(config.comm_size, config.comm_features), nn.ReLU())
+        self.comm = nn.Sequential(nn.Linear(config.comm_size + config.link_inputs, config.comm_features), nn.ReLU())
         self.trunk = nn.Sequential(nn.Linear(config.map_features + config.comm_features, config.features), nn.ReLU())
 
     def forward(self, observations: dict[str, torch.Tensor]) -> torch.Tensor:
-        return self.trunk(torch.cat([self.cnn(observations["map"]), self.comm(observations["comm"])], dim=1))
+        comm = observations["comm"]
+        if self.config.link_inputs:
+            comm = torch.cat([comm, observations["links"].flatten(1)], dim=1)
+        return self.trunk(torch.cat([self.cnn(observations["map"]), self.comm(comm)], dim=1))
 
-    def observe(self, map_hwc: np.ndarray, comm: np.ndarray) -> torch.Tensor:
-        """Features of raw observations: ``map_hwc`` (B, H, W, C) uint8, ``comm`` (B, K) float."""
+    def observe(self, map_hwc: np.ndarray, comm: np.ndarray, links: np.ndarray | None = None) -> torch.Tensor:
+        """Features of raw observations: ``map_hwc`` (B, H, W, C) uint8, ``comm`` (B, K) float, ``links``
+        (B, N - 1, 2) float when the network reads them."""
         device = next(self.parameters()).device
         planes = torch.as_tensor(np.asarray(map_hwc), device=device).permute(0, 3, 1, 2).float() / 255.0
-        return self(dict(map=planes, comm=torch.as_tensor(np.asarray(comm, np.float32), device=device)))
+        parts = dict(map=planes, comm=torch.as_tensor(np.asarray(comm, np.float32), device=device))
+        if self.config.link_inputs:
+            if links is None:
+                raise ValueError("this network reads the 'links' observation: pass it")
+            parts["links"] = torch.as_tensor(np.asarray(links, np.float32), device=device)
+        return self(parts)
 
 
 class CommPolicyNetwork(nn.Module):
@@ -86,15 +104,31 @@ class CommPolicyNetwork(nn.Module):
         super().__init__()
         self.config = config
         self.features = CommFeatures(config)
-        self.action = nn.Linear(config.features, config.heads)
+        self.action = nn.Linear(config.head_inputs, config.heads)
 
     @torch.no_grad()
-    def act(self, map_hwc: np.ndarray, comm: np.ndarray, rng: np.random.Generator | None = None) -> np.ndarray:
+    def act(self, map_hwc: np.ndarray, comm: np.ndarray, rng: np.random.Generator | None = None,
+            links: np.ndarray | None = None) -> np.ndarray:
         """(B, actions) int8: each Bernoulli head drawn with ``rng`` (the policy as trained), or its mode
         (logit > 0) when ``rng`` is None; a ``round`` head's draw is every entry of its agent."""
-        logits = self.action(self.features.observe(map_hwc, comm)).double().cpu().numpy()
+        features = self.features.observe(map_hwc, comm, links)
+        if self.config.action_form == "team":  # the batch is one team: one decision for all of it
+            logits = self.action(team_pool(features[None]))
+            logits = logits.expand(len(features), -1)
+            if rng is not None:  # one draw for the team, every agent acts on it
+                draw = rng.random()
+                probability = float(torch.sigmoid(logits[0, 0]))
+                return np.full((len(features), self.config.actions), int(draw < probability), np.int8)
+        else:
+            logits = self.action(features)
+        logits = logits.double().cpu().numpy()
         if rng is None:
             drawn = (logits > 0).astype(np.int8)
         else:
             drawn = (rng.random(logits.shape) < 0.5 * (1.0 + np.tanh(0.5 * logits))).astype(np.int8)  # sigmoid
-        return np.repeat(drawn, self.config.actions, axis=1) if self.config.action_form == "round" else drawn
+        return np.repeat(drawn, self.config.actions, axis=1) if self.config.heads == 1 else drawn
+
+
+def team_pool(features: torch.Tensor) -> torch.Tensor:
+    """(B, N, F) per-agent features -> (B, 2F): their mean and max over the team (any order, any team size)."""
+    return torch.cat([features.mean(dim=1), features.amax(dim=1)], dim=1)

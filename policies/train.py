@@ -49,15 +49,25 @@ class TrainConfig:
     rolling: int = 20
     """Episodes in the rolling mean that picks the best policy."""
     action_form: str = "entries"
-    """``entries``: a Bernoulli per action entry; ``round``: one per agent, send everything or nothing
-    (``policies.gate``)."""
+    """``entries``: a Bernoulli per action entry; ``round``: one per agent, send everything or nothing; ``team``:
+    one for the whole team from every agent's observation (``policies.gate``)."""
+    critic: str = "local"
+    """``local``: the value function reads the actor's observation; ``central``: ``state()`` and the agent's
+    ``comm`` (MAPPO; ``policies.critic``)."""
+    read_links: bool = False
+    """The policy reads the ``links`` observation (which links were up, what they carry) beside ``comm``: needed
+    to time messages when links come and go (``link_range_m``, ``link_mb_per_round``)."""
+    tensorboard: bool = True
+    """TensorBoard logs under ``OUT/tensorboard`` (episodes at env steps; PPO's losses under ``ppo``)."""
 
 
 def same_run(old: dict, new: dict) -> bool:
     """Whether two runs' settings differ only in how long they train (and the command line that said so)."""
     def core(settings: dict) -> dict:
         kept = {k: v for k, v in settings.items() if k not in ("command", "title", "experiment")}
-        kept["train"] = {k: v for k, v in settings.get("train", {}).items() if k != "total_env_steps"}
+        kept["train"] = {k: v for k, v in settings.get("train", {}).items() if k not in ("total_env_steps", "tensorboard")}
+        kept["train"].setdefault("critic", "local")  # runs begun before the central critic had the local one
+        kept["train"].setdefault("read_links", False)  # and read no links
         kept["train"].setdefault("action_form", "entries")  # runs begun before the round form were entries
         kept["train"].setdefault("worlds_per_worker", 1)  # and before several worlds per worker, one each
         return kept
@@ -76,22 +86,34 @@ def claim_run_folder(out: Path, settings: dict) -> dict:
     return settings
 
 
-def features_extractor_class():
-    """SB3's extractor around ``CommFeatures`` (SB3 imported only when training)."""
+def features_extractor_class(form: str = "entries"):
+    """SB3's extractor around ``CommFeatures`` (SB3 imported only when training); in the ``team`` form it reads
+    the team's stacked observations, (B, N, ...), and pools the agents' features (``network.team_pool``)."""
     from stable_baselines3.common.torch_layers import BaseFeaturesExtractor  # noqa: PLC0415
 
-    from policies.network import CommFeatures, NetworkConfig  # noqa: PLC0415
+    from policies.network import CommFeatures, NetworkConfig, team_pool  # noqa: PLC0415
 
     class SB3CommFeatures(BaseFeaturesExtractor):
         def __init__(self, observation_space, config: dict):
             net_config = NetworkConfig.from_dict(config)
-            super().__init__(observation_space, net_config.features)
+            super().__init__(observation_space, net_config.head_inputs)
             self.net = CommFeatures(net_config)
 
         def forward(self, observations):
             return self.net(observations)
 
-    return SB3CommFeatures
+    class SB3TeamFeatures(SB3CommFeatures):
+        def forward(self, observations):
+            maps = observations["map"]  # (B, N, H, W, C) floats in [0, 255]: not an image to SB3 (4 axes)
+            batch, agents = maps.shape[:2]
+            planes = maps.flatten(0, 1).permute(0, 3, 1, 2) / 255.0
+            parts = dict(map=planes, comm=observations["comm"].flatten(0, 1))
+            if "links" in observations:
+                parts["links"] = observations["links"].flatten(0, 1)
+            features = self.net(parts)
+            return team_pool(features.view(batch, agents, -1))
+
+    return SB3TeamFeatures if form == "team" else SB3CommFeatures
 
 
 class EpisodeLog:
@@ -175,7 +197,7 @@ def export_network(model, network_config: dict):
     from policies.network import CommPolicyNetwork, NetworkConfig  # noqa: PLC0415
 
     network = CommPolicyNetwork(NetworkConfig.from_dict(network_config))
-    network.features.load_state_dict(model.policy.features_extractor.net.state_dict())
+    network.features.load_state_dict(model.policy.pi_features_extractor.net.state_dict())
     network.action.load_state_dict(model.policy.action_net.state_dict())
     return network.eval()
 
@@ -187,7 +209,10 @@ def train(env_factory: Callable[[int], object], config: TrainConfig, out: str | 
     from stable_baselines3.common.callbacks import BaseCallback  # noqa: PLC0415
 
     from policies.files import save_policy  # noqa: PLC0415
-    from policies.gate import GatedFactory, check_action_form  # noqa: PLC0415
+    from stable_baselines3.common.utils import set_random_seed  # noqa: PLC0415
+
+    from policies.critic import StateFactory, central_critic_policy, check_critic  # noqa: PLC0415
+    from policies.gate import GatedFactory, TeamFactory, check_action_form  # noqa: PLC0415
     from policies.network import NetworkConfig  # noqa: PLC0415
     from policies.observation import MAP_CHANNELS  # noqa: PLC0415
     from policies.safe_checkpoint import (UnsafeCheckpointError, load_training_state,  # noqa: PLC0415
@@ -198,25 +223,32 @@ def train(env_factory: Callable[[int], object], config: TrainConfig, out: str | 
     settings = claim_run_folder(out, {"train": asdict(config), **training_record})
 
     # ---- the vector env: every agent of every worker's env one entry, one shared policy -------------------
-    # (the round form learns on a gated env: one action entry per agent, broadcast to the env's entries)
-    gated = check_action_form(config.action_form) == "round"
-    vec, num_agents = sb3_vec_env_from_factory(GatedFactory(env_factory) if gated else env_factory, config.workers,
-                                               config.seed, config.worlds_per_worker)
+    # (the round form learns on a gated env: one action entry per agent, broadcast to the env's entries; the team
+    # form on an env whose one agent is the team; a central critic adds state() to every observation)
+    form, critic = check_action_form(config.action_form), check_critic(config.critic)
+    factory = StateFactory(env_factory) if critic == "central" else env_factory
+    factory = {"round": GatedFactory, "team": TeamFactory}.get(form, lambda f: f)(factory)
+    vec, entries_per_world = sb3_vec_env_from_factory(factory, config.workers, config.seed, config.worlds_per_worker)
     space = vec.observation_space
-    entries = 2 * (num_agents - 1) if gated else int(vec.action_space.n)  # the env's layout (policies.scripted)
-    network_config = NetworkConfig(map_channels=len(MAP_CHANNELS), comm_size=int(space["comm"].shape[0]),
-                                   actions=entries, action_form=config.action_form).as_dict()
+    comm_shape = space["comm"].shape
+    num_agents = comm_shape[0] if form == "team" else entries_per_world  # the team's size
+    entries = 2 * (num_agents - 1) if form != "entries" else int(vec.action_space.n)  # the env's layout (policies.scripted)
+    links = space.spaces.get("links")
+    link_inputs = int(np.prod(links.shape[-2:])) if links is not None and config.read_links else 0
+    network_config = NetworkConfig(map_channels=len(MAP_CHANNELS), comm_size=int(comm_shape[-1]),
+                                   actions=entries, action_form=form, link_inputs=link_inputs).as_dict()
 
     # ---- PPO, fresh or from the last checkpoint ----------------------------------------------------------
     # (tensors only: a checkpoint is read with weights_only=True, so resuming never runs code)
     checkpoint = out / "checkpoint.pt"
     refuse_pickled_checkpoint(out / "checkpoint.zip")
-    log = EpisodeLog(out / "log.csv", num_agents)
-    model = PPO("MultiInputPolicy", vec, n_steps=config.n_steps, batch_size=config.batch_size,
+    log = EpisodeLog(out / "log.csv", entries_per_world)
+    set_random_seed(config.seed)  # the networks' initialisation (the envs are seeded through reset)
+    model = PPO(central_critic_policy() if critic == "central" else "MultiInputPolicy", vec, n_steps=config.n_steps, batch_size=config.batch_size,
                 n_epochs=config.n_epochs, learning_rate=config.learning_rate, gamma=config.gamma,
                 gae_lambda=config.gae_lambda, ent_coef=config.ent_coef, clip_range=config.clip_range,
                 device="cpu", verbose=0,
-                policy_kwargs=dict(features_extractor_class=features_extractor_class(),
+                policy_kwargs=dict(features_extractor_class=features_extractor_class(form),
                                    features_extractor_kwargs=dict(config=network_config),
                                    net_arch=dict(pi=[], vf=[64])))
     if checkpoint.exists():
@@ -227,27 +259,33 @@ def train(env_factory: Callable[[int], object], config: TrainConfig, out: str | 
         except (KeyError, ValueError, RuntimeError, TypeError) as exc:
             raise UnsafeCheckpointError(f"{checkpoint} does not fit this run's policy ({exc}); delete it (or train "
                                         "into a new --out) to start again") from None
-        print(f"[openmulti] resumed training at {model.num_timesteps // num_agents} env steps from {checkpoint}")
+        print(f"[openmulti] resumed training at {model.num_timesteps // entries_per_world} env steps from {checkpoint}")
+
+    from policies.board import TrainingBoard  # noqa: PLC0415
+
+    board = TrainingBoard(out / "tensorboard", model, len(log.rows)) if config.tensorboard else None
 
     class Logging(BaseCallback):
         def _on_step(self) -> bool:
             log.step(np.asarray(self.locals["rewards"], float), np.asarray(self.locals["dones"]),
-                     list(self.locals["infos"]), self.num_timesteps // num_agents)
+                     list(self.locals["infos"]), self.num_timesteps // entries_per_world)
+            if board is not None:
+                board.episodes(log.rows)
             return True
 
     # ---- learn in chunks: checkpoint, policy files, log after each -----------------------------------------
     best = log.rolling_return(config.rolling) if (out / "best.json").exists() else -np.inf
     from tqdm import tqdm  # noqa: PLC0415
 
-    with tqdm(total=config.total_env_steps, initial=min(model.num_timesteps // num_agents, config.total_env_steps),
+    with tqdm(total=config.total_env_steps, initial=min(model.num_timesteps // entries_per_world, config.total_env_steps),
               desc="training", unit="env step", disable=not progress) as bar:
-        while model.num_timesteps // num_agents < config.total_env_steps:
+        while model.num_timesteps // entries_per_world < config.total_env_steps:
             before = model.num_timesteps
-            model.learn(total_timesteps=config.chunk_env_steps * num_agents, reset_num_timesteps=False,
+            model.learn(total_timesteps=config.chunk_env_steps * entries_per_world, reset_num_timesteps=False,
                         callback=Logging())
             save_training_state(checkpoint, model.get_parameters(),
                                 {"num_timesteps": int(model.num_timesteps), "n_updates": int(model._n_updates)})
-            env_steps = model.num_timesteps // num_agents
+            env_steps = model.num_timesteps // entries_per_world
             record = {**settings, "env_steps": env_steps, "episodes": len(log.rows),
                       "rolling_return": log.rolling_return(config.rolling)}
             save_policy(out / "latest", export_network(model, network_config), num_agents, record)
@@ -257,10 +295,12 @@ def train(env_factory: Callable[[int], object], config: TrainConfig, out: str | 
             log.write()
             log.plot(out / "learning_curve.png", f"{training_record.get('title', 'training')}: {len(log.rows)} "
                                                  f"episodes, {env_steps} env steps")
-            bar.update((model.num_timesteps - before) // num_agents)
+            bar.update((model.num_timesteps - before) // entries_per_world)
             bar.set_postfix(episodes=len(log.rows), rolling_return=f"{log.rolling_return(config.rolling):.3f}")
     vec.close()
+    if board is not None:
+        board.close()
     if not (out / "best.json").exists():
         save_policy(out / "best", export_network(model, network_config), num_agents,
-                    {**settings, "env_steps": model.num_timesteps // num_agents, "episodes": len(log.rows)})
+                    {**settings, "env_steps": model.num_timesteps // entries_per_world, "episodes": len(log.rows)})
     return out / "best.json"

@@ -64,7 +64,10 @@ megabytes sent / N (0.01 per MB by default: at `rl_small` it puts the best fixed
 `always` 0.24, `every:3` 0.39, `never` 0.14 per agent; 0 makes bytes free), minus `budget_penalty` x the
 team's refused messages / N. `reward="individual"`:
 its own gain, its own megabytes and refused messages. Ratios are fractions (0-1): an episode's return
-without costs is the final completion ratio.
+without costs is the final completion ratio. `reward_baseline="never_always"` puts every world on one scale:
+the same episode is played once with `never` and once with `always` (cached on disk), a step pays its gain
+less `never`'s at that step over what `always` adds by the end, minus `comm_cost_of_always` (0.3) x its
+share of `always`'s bytes; `never` returns 0 and `always` 0.7 in every world (`environment.rewards`).
 
 ### Episode
 Termination when every path is read (`rl`, `fast`: 24 steps, `rl_tiny`: 8, `demo`: 12, `full`: 20): the
@@ -118,10 +121,11 @@ from pettingzoo.utils import parallel_to_aec, wrappers
 
 from mapping.perception import shared_text_encoder
 from mapping.runtime import torch_threads
-from mapping.team import Team
+from mapping.team import RoundPlan, Team
 from openmulti_env.environment.actions import ActionError, action_size, actions_to_plan
 from openmulti_env.environment.config import env_config, env_workers
 from openmulti_env.experiment import Experiment
+from openmulti_env.environment.rewards import RewardBaselines, step_rewards
 from openmulti_env.environment.render import AGENT_COLOURS, agent_tile, compose, team_panel
 from openmulti_env.environment.observation import ProbeRaster, TeamObserver, slot_instances
 from openmulti_env.world.cache import cached_world
@@ -176,6 +180,8 @@ class OpenMultiParallelEnv(ParallelEnv, EzPickle):
         self._episode_rng, _ = seeding.np_random(seed)
         self.world = None
         self.team: Team | None = None
+        self._baselines: RewardBaselines | None = None
+        self._baseline = None
         self.timings: dict[str, float] = {}
         self.last_cache_hit: bool | None = None
 
@@ -205,18 +211,11 @@ class OpenMultiParallelEnv(ParallelEnv, EzPickle):
             self._episode_rng, _ = seeding.np_random(seed)
         episode_seed = int(self._episode_rng.integers(2**31 - 1))
         self._build_world()
-        cfg = self.config
-        encoder = shared_text_encoder(name=cfg.perception.text_encoder, persist=True)
-        streams = world_streams(self.world, episode_seed, cfg.perception.segmentation_errors, text_encoder=encoder,
-                                render=self._frames.render)
-        if self._vocabulary is None:
-            self._vocabulary = world_vocabulary(self.world, encoder)
         if self.team is not None:  # freed here by reference counting: a team holds no reference cycles
             self.team.release()  # (tested), so no full garbage collection (130 ms a reset) is needed
             self.team = None
-        self.team = Team(streams, cfg.team, self._vocabulary, seed=episode_seed,
-                         channel=cfg.channel, device=cfg.run.device, workers=env_workers(cfg),
-                         processes=cfg.run.processes, learner=cfg.run.learner)
+        self._baseline = self._baselines.episode(episode_seed) if self._baselines is not None else None
+        self.team = self._new_team(episode_seed)
         self._snapshots = self.team.snapshots()
         self.agents = list(self.possible_agents)
         self.steps = 0
@@ -229,6 +228,33 @@ class OpenMultiParallelEnv(ParallelEnv, EzPickle):
         infos = {a: self._info(i, None, 0.0) for i, a in enumerate(self.agents)}
         self.timings = {"reset_s": time.perf_counter() - start}
         return observations, infos
+
+    def _new_team(self, episode_seed: int) -> Team:
+        cfg = self.config
+        encoder = shared_text_encoder(name=cfg.perception.text_encoder, persist=True)
+        streams = world_streams(self.world, episode_seed, cfg.perception.segmentation_errors, text_encoder=encoder,
+                                render=self._frames.render)
+        if self._vocabulary is None:
+            self._vocabulary = world_vocabulary(self.world, encoder)
+        return Team(streams, cfg.team, self._vocabulary, seed=episode_seed, channel=cfg.channel, device=cfg.run.device,
+                    workers=env_workers(cfg), processes=cfg.run.processes, learner=cfg.run.learner)
+
+    def _play_fixed(self, episode_seed: int, send: bool) -> tuple[np.ndarray, np.ndarray]:
+        """``always`` (``send``) or ``never`` on the episode ``episode_seed``: (T + 1, N) completions, (N,) MB sent
+        (the normalised reward's baseline, ``environment.rewards``)."""
+        team = self._new_team(episode_seed)
+        n = self.config.num_agents
+        plan = RoundPlan.always(n) if send else RoundPlan.never(n)
+        completions = [np.zeros(n)]
+        try:
+            while not team.done and (self.config.env.horizon is None or len(completions) <= self.config.env.horizon):
+                team.round(plan)
+                covered = team.surface_coverage(self._probe_points, self._probe_normals)
+                completions.append(np.array([float(np.mean(c)) for c in covered]))
+            mb = np.array([s.bytes_sent_total for s in team.snapshots()], float) / 1e6
+        finally:
+            team.release()
+        return np.stack(completions), mb
 
     def _build_world(self) -> None:
         """The world once per env (cached on disk across envs and processes), with its probes and grid."""
@@ -251,6 +277,8 @@ class OpenMultiParallelEnv(ParallelEnv, EzPickle):
         self._floor = floor.reshape(cfg.env.map_size, cfg.env.map_size)
         self._vocabulary = None
         self._frames = RenderCache(self.world, cfg.env.frame_cache_mb)
+        self._baselines = (RewardBaselines(cfg, self.world_seed, self._play_fixed)
+                           if cfg.env.reward_baseline != "none" else None)
 
     def step(self, actions: dict):
         with torch_threads(self.config.run.threads):
@@ -295,15 +323,9 @@ class OpenMultiParallelEnv(ParallelEnv, EzPickle):
         return observations, rewards, terminations, truncations, infos
 
     def _rewards(self, report, gains: np.ndarray) -> dict[str, float]:
-        cfg = self.config
-        n = len(self.possible_agents)
         mb = np.asarray(report.bytes_sent, float) / 1e6
         refused = np.asarray([snapshot.messages["over_budget"] for snapshot in report.agents], float)
-        own = gains - cfg.env.comm_cost_per_mb * mb - cfg.env.budget_penalty * refused
-        if cfg.env.reward == "individual":
-            values = own
-        else:
-            values = np.full(n, gains.mean() - (cfg.env.comm_cost_per_mb * mb.sum() + cfg.env.budget_penalty * refused.sum()) / n)
+        values = step_rewards(self.config.env, gains, mb, refused, self.steps + 1, self._baseline)
         return {a: float(values[i]) for i, a in enumerate(self.possible_agents)}
 
     # ---- observations, infos, state ----------------------------------------------------------------

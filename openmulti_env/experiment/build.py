@@ -15,7 +15,7 @@ from mapping.team.consistency import CONSISTENCY_ALGORITHMS
 from mapping.team.global_map import GLOBAL_FORMS, MACIM_RHO
 from mapping.team.team import LEARNERS
 from openmulti_env.experiment.overrides import ConfigError, apply_overrides, leaf_paths, resolve_key
-from openmulti_env.experiment.tree import (DATA_KINDS, PROCESS_MODES, REWARD_MODES, TEXT_ENCODERS, Experiment)
+from openmulti_env.experiment.tree import (DATA_KINDS, PROCESS_MODES, REWARD_BASELINES, REWARD_MODES, TEXT_ENCODERS, Experiment)
 from openmulti_env.world.world import MAX_AGENTS
 
 MINIMUMS = ("team.min_keyframes", "team.min_local_steps")
@@ -112,7 +112,9 @@ def check(tree: Experiment) -> Experiment:
                         ("team.consistency.rays_per_pose", tree.team.consistency.rays_per_pose),
                         ("env.probe_points", tree.env.probe_points)):
         need(value >= 1, f"{path} must be >= 1, got {value}")
-    for path, value in (("env.comm_cost_per_mb", tree.env.comm_cost_per_mb),
+    need(tree.env.reward_baseline in REWARD_BASELINES,
+         f"env.reward_baseline must be one of {REWARD_BASELINES}, got {tree.env.reward_baseline!r}")
+    for path, value in (("env.comm_cost_per_mb", tree.env.comm_cost_per_mb), ("env.comm_cost_of_always", tree.env.comm_cost_of_always),
                         ("env.budget_penalty", tree.env.budget_penalty)):
         need(math.isfinite(value) and value >= 0, f"{path} must be a finite number >= 0, got {value}")
     success = tree.channel.link_success

@@ -38,7 +38,8 @@ ALIASES: dict[str, str] = {
     "success_probability": "channel.success_probability", "comm_budget_mb": "channel.budget_mb",
     "link_range_m": "channel.link_range_m", "link_success": "channel.link_success", "link_mb_per_round": "channel.link_mb_per_round",
     # the env
-    "reward": "env.reward", "comm_cost_per_mb": "env.comm_cost_per_mb", "action_form": "env.action_form",
+    "reward": "env.reward", "comm_cost_per_mb": "env.comm_cost_per_mb", "reward_baseline": "env.reward_baseline",
+    "comm_cost_of_always": "env.comm_cost_of_always", "action_form": "env.action_form",
     "instance_slots": "env.instance_slots", "budget_penalty": "env.budget_penalty",
     "probe_points": "env.probe_points", "map_size": "env.map_size", "horizon": "env.horizon",
     "max_cycles": "env.horizon", "frame_cache_mb": "env.frame_cache_mb", "cache_dir": "env.cache_dir",

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
 
+from mapping.config_fields import NEUTRAL_DEFAULT
 from mapping.model.sdf_loss import SdfConfig
 from mapping.team import ChannelConfig, TeamConfig
 from mapping.team.global_map import GLOBAL_ENCODING_SCALE, GLOBAL_FORMS, GLOBAL_WIDTH
@@ -29,6 +30,8 @@ from openmulti_env.world.world import WorldConfig
 
 TEXT_ENCODERS = ("mpnet", "minilm")
 REWARD_MODES = ("team", "individual")
+REWARD_BASELINES = ("none", "never_always")
+"""``env.reward_baseline``: raw gains, or gains over the same episode's never/always (environment.rewards)."""
 DATA_KINDS = ("auto", "replica", "nice_slam", "scannet")
 PROCESS_MODES = (None, "ray")
 
@@ -72,6 +75,13 @@ class EnvSettings:
     """Reward cost per megabyte sent (0: free bytes, and ``always`` is optimal by construction). 0.01 was chosen
     at ``rl_small``, where it puts the best fixed schedule inside the range (per agent: ``always`` 0.24,
     ``every:3`` 0.39, ``never`` 0.14; docs/schedules.md)."""
+    reward_baseline: str = field(default="none", metadata=NEUTRAL_DEFAULT)
+    """``none``: the raw completion gain; ``never_always``: each step's gain less ``never``'s at that step, over
+    what ``always`` adds by the end, in the same world and episode (both played once and cached): the same scale
+    in every world (``openmulti_env.environment.rewards``). ``comm_cost_per_mb`` is then not used."""
+    comm_cost_of_always: float = field(default=0.3, metadata=NEUTRAL_DEFAULT)
+    """With ``reward_baseline="never_always"``: the return's price of sending as many bytes as ``always`` does in
+    that world (``always`` returns 1 minus this, ``never`` 0)."""
     action_form: str = "entries"
     """``entries`` (per peer: parameters, rays), ``round`` (one decision per round) or ``instances`` (per peer:
     which of ``instance_slots`` instances, then rays; ``openmulti_env.environment.actions``)."""

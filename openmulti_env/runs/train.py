@@ -29,9 +29,13 @@ class WorldCycle(ParallelEnv):
 
     metadata = OpenMultiParallelEnv.metadata
 
-    def __init__(self, scenes: tuple[str, ...], start: int = 0, episodes_per_world: int = 2, **env_kwargs):
+    def __init__(self, scenes: tuple[str, ...], start: int = 0, episodes_per_world: int = 2,
+                 episode_seeds: int | None = None, **env_kwargs):
         if not scenes:
             raise ValueError("WorldCycle needs at least one scene")
+        if episode_seeds is not None and episode_seeds < 1:
+            raise ValueError(f"episode_seeds must be at least 1 (or None: a fresh seed every episode), got {episode_seeds}")
+        self.episode_seeds = episode_seeds
         self.scenes, self.start, self.episodes_per_world = tuple(scenes), int(start), int(episodes_per_world)
         self.env_kwargs = env_kwargs
         self.episodes = 0
@@ -70,6 +74,9 @@ class WorldCycle(ParallelEnv):
         if scene != self.env.config.scene:
             self.env.close()
             self.env = OpenMultiParallelEnv(scene=scene, **self.env_kwargs)
+        if self.episode_seeds is not None:  # the k-th episode on this world (over every visit), seeds 0..K-1 in turn
+            visit = (self.start + block) // len(self.scenes)  # passes over the list so far
+            seed = (visit * self.episodes_per_world + self.episodes % self.episodes_per_world) % self.episode_seeds
         observations, infos = self.env.reset(seed=seed, options=options)
         return observations, self._with_summary(infos)
 
@@ -85,6 +92,10 @@ class WorldCycle(ParallelEnv):
         """Every info also carries the last finished episode's team completion (percent) and MB (SuperSuit
         merges the next episode's reset infos into the final step's, so the final values would be lost)."""
         return {agent: {**info, **self.summary} for agent, info in infos.items()}
+
+    @property
+    def state_space(self):
+        return self.env.state_space
 
     def state(self):
         return self.env.state()
@@ -102,10 +113,11 @@ class WorkerEnvs:
     workers: int
     episodes_per_world: int = 2
     env_kwargs: dict = field(default_factory=dict)
+    episode_seeds: int | None = None
 
     def __call__(self, index: int) -> WorldCycle:
         start = index * max(1, len(self.scenes) // max(self.workers, 1))
-        return WorldCycle(self.scenes, start, self.episodes_per_world, **self.env_kwargs)
+        return WorldCycle(self.scenes, start, self.episodes_per_world, self.episode_seeds, **self.env_kwargs)
 
 
 def check_training_scenes(scenes: tuple[str, ...]) -> None:
@@ -196,12 +208,16 @@ def train_command(args) -> int:
     if tree.run.workers is None:  # the worker processes split the cores: each env's agents take turns on its own
         # (a Ray cluster's env runners get one CPU each, whatever this machine has)
         env_kwargs["run__workers"] = 1 if getattr(args, "ray", None) else agent_workers_per_env(config.workers)
-    factory = WorkerEnvs(scenes, config.workers * config.worlds_per_worker, args.episodes_per_world, env_kwargs)
+    factory = WorkerEnvs(scenes, config.workers * config.worlds_per_worker, args.episodes_per_world, env_kwargs,
+                         getattr(args, "episode_seeds", None))
     cost = tree.env.comm_cost_per_mb
     record = {"command": "openmulti train " + " ".join(shlex.quote(a) for a in sys.argv[2:]), "scenes": list(scenes),
               "env": env_summary(tree, env_kwargs), "experiment": tree_record(tree),
               "title": f"{tree.preset}, {tree.num_agents} agents, cost {cost}/MB"
-              f"{', round form' if config.action_form == 'round' else ''}"}
+              f"{'' if config.action_form == 'entries' else ', ' + config.action_form + ' form'}"
+              f"{', central critic' if config.critic == 'central' else ''}"
+              f"{', normalised reward' if tree.env.reward_baseline != 'none' else ''}",
+              **({"episode_seeds": args.episode_seeds} if getattr(args, "episode_seeds", None) else {})}
     if backend == "rllib":
         from policies.train_rllib import train_rllib  # noqa: PLC0415
 

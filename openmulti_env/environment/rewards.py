@@ -1,0 +1,145 @@
+"""The env's rewards, and the per-world baseline that gives them signal.
+
+Raw (``env.reward_baseline="none"``): a step pays the gain of the completion ratio (the team's mean, or the
+agent's own) minus ``comm_cost_per_mb`` x the megabytes sent. Across worlds those returns differ by ten times
+what separates two schedules in one world (docs/schedules.md, learning): a room that maps easily pays more
+whatever the team sends, and that spread drowns the policy's share of the return.
+
+Normalised (``"never_always"``): the same episode (world and episode seed) is played twice more, once with
+``never`` and once with ``always``, and a step pays
+
+    (gain - never's gain at that step) / (always's final - never's final)  -  comm_cost_of_always x MB / always's MB
+
+so an episode's return is the share of what talking can add in *this* world that the team got, minus the
+price of the share of ``always``'s bytes it spent: 0 for ``never``, 1 - comm_cost_of_always for ``always``,
+in every world. Subtracting never's gain step by step also takes out each agent's own mapping progress,
+which no communication decision moves. The two episodes are cached on disk per (world, episode seed and
+everything that shapes the maps), so a training run that revisits its worlds' episodes pays them once.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+from dataclasses import asdict, dataclass
+from importlib import metadata
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from mapping.perception.model_cache import cache_root
+from openmulti_env.experiment.tree import REWARD_BASELINES  # noqa: F401  (re-exported: the modes this module pays)
+
+GAIN_FLOOR = 0.02
+"""Smallest ``always - never`` final completion (a fraction) the normalised reward divides by: a world where
+talking adds under two points would otherwise pay noise x 50."""
+BASELINE_FORMAT = 1
+
+
+@dataclass(frozen=True)
+class BaselineEpisodes:
+    """``never`` and ``always`` on one episode: completion (fraction) of each agent after each step, with the
+    start (all zero) as row 0, and the MB each agent sent in ``always``."""
+
+    never: np.ndarray
+    """(T + 1, N) completion ratios."""
+    always: np.ndarray
+    """(T + 1, N)."""
+    always_mb: np.ndarray
+    """(N,) megabytes each agent sent over the episode."""
+
+    def as_record(self) -> dict:
+        return {"format": BASELINE_FORMAT, "never": self.never.tolist(), "always": self.always.tolist(),
+                "always_mb": self.always_mb.tolist()}
+
+    @staticmethod
+    def from_record(record: dict) -> "BaselineEpisodes":
+        if record.get("format") != BASELINE_FORMAT:
+            raise ValueError(f"baseline record of format {record.get('format')!r}, expected {BASELINE_FORMAT}")
+        return BaselineEpisodes(np.asarray(record["never"], float), np.asarray(record["always"], float),
+                                np.asarray(record["always_mb"], float))
+
+    def gain_share(self, step: int, team: bool) -> tuple[np.ndarray, np.ndarray]:
+        """(never's gain at ``step`` (1-based), the denominator ``always - never`` at the end), per agent or, with
+        ``team``, the team's mean broadcast to every agent."""
+        row = min(step, len(self.never) - 1)
+        never_gain = self.never[row] - self.never[row - 1]
+        span = self.always[-1] - self.never[-1]
+        if team:
+            never_gain = np.full_like(never_gain, never_gain.mean())
+            span = np.full_like(span, span.mean())
+        return never_gain, np.maximum(span, GAIN_FLOOR)
+
+
+def baseline_key(tree, world_seed: int, episode_seed: int) -> str:
+    """A digest of what decides the two episodes: the scene, both seeds, the world, perception, team and channel
+    settings, the probes, the package version (the env's reward and observation settings do not enter)."""
+    try:
+        version = metadata.version("openmulti")
+    except metadata.PackageNotFoundError:
+        version = "unknown"
+    parts = {"scene": tree.scene, "world_seed": int(world_seed), "episode_seed": int(episode_seed),
+             "world": asdict(tree.world), "perception": asdict(tree.perception), "team": asdict(tree.team),
+             "channel": asdict(tree.channel), "probe_points": tree.env.probe_points, "format": BASELINE_FORMAT,
+             "version": version}
+    return hashlib.sha256(json.dumps(parts, sort_keys=True, default=str).encode()).hexdigest()[:32]
+
+
+class RewardBaselines:
+    """Per-episode ``BaselineEpisodes``, from memory, the disk cache, or ``play(episode_seed, send)`` (the env's
+    way to play a fixed schedule: it returns the (T + 1, N) completions and the (N,) MB sent)."""
+
+    def __init__(self, tree, world_seed: int, play: Callable[[int, bool], tuple[np.ndarray, np.ndarray]]):
+        self.tree, self.world_seed, self.play = tree, int(world_seed), play
+        folder = tree.env.cache_dir
+        self.folder = (Path(folder).expanduser() if folder is not None else cache_root()) / "reward_baselines"
+        self.memory: dict[int, BaselineEpisodes] = {}
+        self.played = 0
+        """Episodes played (not found in a cache) by this object: two per new episode seed."""
+
+    def episode(self, episode_seed: int) -> BaselineEpisodes:
+        if episode_seed in self.memory:
+            return self.memory[episode_seed]
+        path = self.folder / f"{baseline_key(self.tree, self.world_seed, episode_seed)}.json"
+        found = None
+        if path.exists():
+            try:
+                found = BaselineEpisodes.from_record(json.loads(path.read_text()))
+            except (ValueError, KeyError, json.JSONDecodeError):
+                found = None  # a torn or old entry: played again and rewritten
+        if found is None:
+            never, _ = self.play(episode_seed, False)
+            always, always_mb = self.play(episode_seed, True)
+            self.played += 2
+            found = BaselineEpisodes(np.asarray(never, float), np.asarray(always, float), np.asarray(always_mb, float))
+            path.parent.mkdir(parents=True, exist_ok=True)
+            tmp = path.with_suffix(f".{os.getpid()}.tmp")
+            tmp.write_text(json.dumps(found.as_record()))
+            os.replace(tmp, path)
+        self.memory[episode_seed] = found
+        return found
+
+
+def step_rewards(env_settings, gains: np.ndarray, mb: np.ndarray, refused: np.ndarray, step: int,
+                 baseline: BaselineEpisodes | None) -> np.ndarray:
+    """(N,) rewards of one step (``step`` 1-based) from each agent's completion gain (fraction), MB sent and
+    messages refused; ``baseline`` is required with ``reward_baseline="never_always"`` (module docstring)."""
+    n = len(gains)
+    team = env_settings.reward != "individual"
+    penalty = env_settings.budget_penalty * refused
+    if env_settings.reward_baseline == "none":
+        own = gains - env_settings.comm_cost_per_mb * mb - penalty
+        if not team:
+            return own
+        return np.full(n, gains.mean() - (env_settings.comm_cost_per_mb * mb.sum() + penalty.sum()) / n)
+    if baseline is None:
+        raise RuntimeError("the normalised reward needs the episode's never/always baseline")
+    never_gain, span = baseline.gain_share(step, team)
+    mb_always = np.maximum(baseline.always_mb, 1e-9)
+    if team:
+        gain = (gains.mean() - never_gain[0]) / span[0]
+        cost = env_settings.comm_cost_of_always * mb.sum() / mb_always.sum()
+        return np.full(n, gain - cost - penalty.sum() / n)
+    return (gains - never_gain) / span - env_settings.comm_cost_of_always * mb / mb_always - penalty

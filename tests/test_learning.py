@@ -1,0 +1,186 @@
+"""Learning schedules: the normalised reward (never/always baselines per episode, cached), the team action form,
+the centralised critic, TensorBoard logs, and worlds replayed from a fixed set of episode seeds."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from openmulti_env.environment.rewards import GAIN_FLOOR, BaselineEpisodes, step_rewards
+from policies import make_policy
+from policies.network import CommPolicyNetwork, NetworkConfig
+from policies.observation import MAP_CHANNELS, comm_size
+
+
+def settings(**kw):
+    base = dict(reward="team", reward_baseline="never_always", comm_cost_per_mb=0.01, comm_cost_of_always=0.3,
+                budget_penalty=0.05)
+    return SimpleNamespace(**{**base, **kw})
+
+
+def baseline():
+    never = np.array([[0, 0], [0.10, 0.20], [0.20, 0.30]])
+    always = np.array([[0, 0], [0.20, 0.30], [0.60, 0.70]])
+    return BaselineEpisodes(never, always, np.array([3.0, 1.0]))
+
+
+def test_the_normalised_reward_pays_0_for_never_and_1_minus_the_price_for_always():
+    base = baseline()
+    zero = np.zeros(2)
+    never = sum(step_rewards(settings(), base.never[t] - base.never[t - 1], zero, zero, t, base) for t in (1, 2))
+    np.testing.assert_allclose(never, 0.0, atol=1e-12)
+    always = sum(step_rewards(settings(), base.always[t] - base.always[t - 1], np.array([1.5, 0.5]), zero, t, base)
+                 for t in (1, 2))
+    np.testing.assert_allclose(always, 0.7)  # both steps' MB add up to always's 4 MB: the whole price
+    own = sum(step_rewards(settings(reward="individual"), base.always[t] - base.always[t - 1], np.array([1.5, 0.5]),
+                           zero, t, base) for t in (1, 2))
+    np.testing.assert_allclose(own, [0.7, 0.7])
+    flat = BaselineEpisodes(base.never, base.never + 0.001, base.always_mb)  # talking adds nothing here
+    step = step_rewards(settings(), np.array([0.11, 0.21]), zero, zero, 1, flat)
+    np.testing.assert_allclose(step, 0.01 / GAIN_FLOOR)  # divided by the floor, not by 0.001
+    raw = step_rewards(settings(reward_baseline="none"), np.array([0.1, 0.3]), np.array([2.0, 0.0]), zero, 1, None)
+    np.testing.assert_allclose(raw, 0.2 - 0.01 * 2.0 / 2)  # the raw team reward as before
+    with pytest.raises(RuntimeError, match="baseline"):
+        step_rewards(settings(), zero, zero, zero, 1, None)
+
+
+def test_the_env_plays_each_episode_s_baselines_once_and_the_scale_holds_in_every_world(tmp_path):
+    from openmulti_env import parallel_env
+
+    kwargs = dict(preset="rl_tiny", num_agents=2, cache_dir=str(tmp_path / "cache"), reward_baseline="never_always")
+    returns = {}
+    for scene_seed in (0, 1):
+        env = parallel_env(seed=scene_seed, **kwargs)
+        for name, value in (("always", 1), ("never", 0)):
+            env.reset(seed=7)
+            total = 0.0
+            while env.agents:
+                _, rewards, *_ = env.step({a: np.full(2, value, np.int8) for a in env.agents})
+                total += rewards["agent_0"]
+            returns[scene_seed, name] = total
+        assert env._baselines.played == 2  # never and always, once for the episode seed
+        env.close()
+    for scene_seed in (0, 1):  # the same numbers in two worlds: always 1 - 0.3, never 0
+        assert returns[scene_seed, "always"] == pytest.approx(0.7, abs=1e-6)
+        assert returns[scene_seed, "never"] == pytest.approx(0.0, abs=1e-6)
+    again = parallel_env(seed=0, **kwargs)
+    again.reset(seed=7)
+    assert again._baselines.played == 0  # read from the disk cache
+    again.close()
+    with pytest.raises(ValueError, match="reward_baseline must be one of"):
+        parallel_env(preset="rl_tiny", reward_baseline="mean")
+
+
+def test_the_team_network_draws_one_decision_for_the_whole_team(tmp_path):
+    import torch
+
+    from policies.files import save_policy
+    from policies.learned import LearnedPolicy
+
+    torch.manual_seed(0)
+    network = CommPolicyNetwork(NetworkConfig(len(MAP_CHANNELS), comm_size(3), 4, action_form="team"))
+    path = save_policy(tmp_path / "team", network, 3, {"command": "test"})
+    policy = make_policy(str(path), 3, seed=1)
+    rng = np.random.default_rng(0)
+    sent = []
+    for step in range(30):
+        obs = {f"agent_{i}": {"map": rng.integers(0, 255, (16, 16, len(MAP_CHANNELS)), dtype=np.uint8),
+                              "comm": rng.random(comm_size(3)).astype(np.float32)} for i in range(3)}
+        actions = policy(obs, None, step)
+        values = np.stack(list(actions.values()))
+        assert values.shape == (3, 4) and len(set(values.ravel().tolist())) == 1  # all agents, all entries alike
+        sent.append(int(values[0, 0]))
+    assert 0 < sum(sent) < 30  # drawn from its Bernoulli, round by round
+    mode = LearnedPolicy.load(str(path), 3, seed=None)  # the mode pools the agents: their order does not matter
+    shuffled = {f"agent_{i}": obs[f"agent_{k}"] for i, k in enumerate((2, 0, 1))}
+    assert mode(obs)["agent_0"][0] == mode(shuffled)["agent_0"][0]
+
+
+def test_the_team_gate_is_a_parallel_env_with_one_agent_that_sends_for_everyone(tmp_path):
+    from pettingzoo.test import parallel_api_test
+
+    from openmulti_env import parallel_env
+    from policies.critic import WithState
+    from policies.gate import TeamGate
+
+    def gated():
+        return TeamGate(WithState(parallel_env(preset="rl_tiny", num_agents=3, cache_dir=str(tmp_path / "worlds"))))
+
+    parallel_api_test(gated(), num_cycles=4)
+    env = gated()
+    space = env.observation_space("team")
+    assert space["map"].shape[0] == 3 and space["comm"].shape == (3, comm_size(3)) and "state" in space.spaces
+    observations, _ = env.reset(seed=0)
+    assert observations["team"]["state"].shape == env.env.state_space.shape
+    _, rewards, _, _, infos = env.step({"team": np.array([1])})
+    assert infos["team"]["bytes_sent_total"] > 0
+    _, _, _, _, infos = env.step({"team": np.array([0])})
+    assert infos["team"]["bytes_sent"] == 0
+    with pytest.raises(ValueError, match="one entry"):
+        env.step({"team": np.array([1, 0])})
+
+
+@pytest.mark.parametrize("form", ["team", "entries"])
+def test_training_with_a_central_critic_ships_a_policy_and_tensorboard_logs(tmp_path, form):
+    pytest.importorskip("stable_baselines3")
+    pytest.importorskip("supersuit")
+    pytest.importorskip("tensorboard")
+    from openmulti_env.runs.train import WorkerEnvs
+    from policies.train import TrainConfig, train
+
+    factory = WorkerEnvs(("tiny",), workers=1, env_kwargs={"preset": "rl_tiny", "num_agents": 3,
+                                                            "cache_dir": str(tmp_path / "worlds")})
+    config = TrainConfig(total_env_steps=8, workers=1, n_steps=8, batch_size=8, n_epochs=1, chunk_env_steps=8,
+                         action_form=form, critic="central")
+    best = train(factory, config, tmp_path / "run", {"command": "test"}, progress=False)
+    policy = make_policy(str(best), 3, seed=0)
+    assert policy.record["architecture"]["action_form"] == form
+    board = tmp_path / "run" / "tensorboard"
+    assert list((board / "episodes").glob("events.out.tfevents.*")) and list((board / "ppo").glob("events.out.tfevents.*"))
+    obs = {f"agent_{i}": {"map": np.zeros((16, 16, len(MAP_CHANNELS)), np.uint8),
+                          "comm": np.zeros(comm_size(3), np.float32)} for i in range(3)}
+    actions = np.stack(list(policy(obs, None, 0).values()))
+    assert actions.shape == (3, 4)
+    if form == "team":
+        assert len(set(actions.ravel().tolist())) == 1
+    with pytest.raises(ValueError, match="other settings"):  # a run folder keeps its critic
+        train(factory, TrainConfig(**{**config.__dict__, "critic": "local"}), tmp_path / "run", {}, progress=False)
+
+
+def test_a_world_cycle_replays_its_worlds_from_a_fixed_set_of_episode_seeds(monkeypatch):
+    from openmulti_env.runs import train as train_module
+
+    seeds = []
+
+    class Fake:
+        def __init__(self, scene, **_):
+            self.config = SimpleNamespace(scene=scene)
+            self.possible_agents = ["agent_0", "agent_1"]
+            self.agents = ["agent_0"]
+
+        def observation_space(self, agent):
+            return None
+
+        def action_space(self, agent):
+            return None
+
+        def reset(self, seed=None, options=None):
+            seeds.append((self.config.scene, seed))
+            return {}, {}
+
+        def step(self, actions):
+            return {}, {}, {}, {}, {}
+
+        def close(self):
+            pass
+
+    monkeypatch.setattr(train_module, "OpenMultiParallelEnv", Fake)
+    cycle = train_module.WorldCycle(("a", "b"), episodes_per_world=2, episode_seeds=3)
+    for _ in range(8):
+        cycle.reset(seed=99)
+        cycle.step({})
+    assert seeds == [("a", 0), ("a", 1), ("b", 0), ("b", 1), ("a", 2), ("a", 0), ("b", 2), ("b", 0)]
+    with pytest.raises(ValueError, match="episode_seeds must be at least 1"):
+        train_module.WorldCycle(("a",), episode_seeds=0)
