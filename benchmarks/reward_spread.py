@@ -19,14 +19,16 @@ from __future__ import annotations
 import argparse
 import itertools
 import json
+import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
-from benchmarks.bench_schedules import parse_setting
-from openmulti_env import parallel_env
-from policies import make_policy
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # bench_schedules, run as a script
+from bench_schedules import parse_setting  # noqa: E402
+from openmulti_env import parallel_env  # noqa: E402
+from policies import make_policy  # noqa: E402
 
 
 def play(env, policy, seed: int) -> dict:

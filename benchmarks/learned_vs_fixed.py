@@ -1,0 +1,171 @@
+"""Learned schedules against the fixed-rate front and ``instance_novelty`` at equal bytes, on unseen cells.
+
+Each cell is a scene and world seed no training run used (3 scenes x 3 seeds by default; training walks
+``random:SEED`` rooms); every policy plays the cell's one episode (episode seed = the world seed) on the env
+(the env's completion estimate, team mean, and the MB the team sent). Per cell, two fronts in (MB, completion):
+
+- the fixed-rate front: ``never``, ``every:K``, ``rate:Q``, ``always``, their upper envelope, linear between points;
+- the instance front: ``never``, ``instance_novelty`` at its settings (from each network once at its final state
+  up to the default), ``always``, the same way.
+
+A policy's margin over a front is its completion minus the front's at the policy's MB (paired: the same cell).
+The table gives, per learned policy, the mean margin over the cells, its standard error, and whether it clears
+two standard errors. Rows go to ``--out/rows.jsonl`` as each episode ends (a rerun skips them); the table to
+``--out/learned_vs_fixed.md`` and a picture of the fronts to ``--out/fronts.png``.
+
+Run: `.venv/bin/python benchmarks/learned_vs_fixed.py --setting rl_lite --learned runs/learn/team_s0/best.json
+--out docs/schedules/learned_unlimited` (about 12 s an episode here; 9 cells x 13 policies is about 25 minutes).
+Link scenarios: `--setting "rl_lite,link_range_m=2.5"` or `"rl_lite,link_mb_per_round=0.25"`. On a Ray cluster
+every (cell, policy) is an independent task (``study_headroom.command`` shows the pattern).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # bench_schedules, run as a script
+from bench_schedules import episode, parse_setting  # noqa: E402
+from openmulti_env import parallel_env  # noqa: E402
+from openmulti_env.environment.config import env_config  # noqa: E402
+from policies import make_policy  # noqa: E402
+
+CELLS = ("room1:3", "room1:4", "room1:5", "office1:3", "office1:4", "office1:5", "office2:3", "office2:4", "office2:5")
+FIXED = ("never", "every:2", "every:3", "every:4", "every:6", "rate:0.25", "rate:0.5", "always")
+INSTANCE = ("instance_novelty", "instance_novelty:change=0.1", "instance_novelty:change=1,final=0.01",
+            "instance_novelty:change=1,after=999,final=0")
+REFERENCE = ("at:11",)
+"""Not on either front: the whole map once in the last round (rl_lite's 12 rounds), for reading the table."""
+
+
+def front(points: list[tuple[float, float]]):
+    """The upper envelope of (MB, completion) points as a function of MB (linear between points, flat past the last)."""
+    pts = sorted(points)
+    keep: list[tuple[float, float]] = []
+    for mb, c in pts:  # non-decreasing in MB: a point under an earlier, cheaper one is dominated
+        if keep and c <= keep[-1][1]:
+            continue
+        keep.append((mb, c))
+    xs, ys = np.array([p[0] for p in keep]), np.array([p[1] for p in keep])
+    return lambda mb: float(np.interp(mb, xs, ys))
+
+
+def margins(rows: list[dict], policy: str, family: tuple[str, ...]) -> np.ndarray:
+    """Per cell with every needed row: the policy's completion minus the family's front at its MB."""
+    out = []
+    for cell in dict.fromkeys(r["cell"] for r in rows):
+        mine = {r["policy"]: r for r in rows if r["cell"] == cell}
+        if policy not in mine or not all(p in mine for p in family):
+            continue
+        f = front([(mine[p]["mb"], mine[p]["completion"]) for p in family])
+        out.append(mine[policy]["completion"] - f(mine[policy]["mb"]))
+    return np.array(out)
+
+
+def report(rows: list[dict], learned: list[str]) -> str:
+    instance_front = ("never",) + INSTANCE + ("always",)
+    lines = ["| policy | cells | mean MB (of always's) | margin over the fixed-rate front [points] | "
+             "margin over the instance front [points] |", "|---|---|---|---|---|"]
+    for policy in list(learned) + list(INSTANCE) + list(REFERENCE) + [p for p in FIXED if p not in ("never", "always")]:
+        mine = [r for r in rows if r["policy"] == policy]
+        if not mine:
+            continue
+        share = np.mean([r["mb"] / next(a["mb"] for a in rows if a["cell"] == r["cell"] and a["policy"] == "always")
+                         for r in mine if any(a["cell"] == r["cell"] and a["policy"] == "always" for a in rows)])
+        cells = []
+        for family in (FIXED, instance_front):
+            m = margins(rows, policy, family)
+            if len(m) < 2:
+                cells.append("-")
+                continue
+            se = m.std(ddof=1) / np.sqrt(len(m))
+            verdict = " **> 2 SE**" if m.mean() > 2 * se else (" < -2 SE" if m.mean() < -2 * se else "")
+            cells.append(f"{m.mean():+.2f} ± {se:.2f}{verdict}")
+        lines.append(f"| `{policy}` | {len(mine)} | {np.mean([r['mb'] for r in mine]):.1f} ({100 * share:.0f} %) | "
+                     + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def plot(rows: list[dict], learned: list[str], png: Path) -> None:
+    import matplotlib  # noqa: PLC0415
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt  # noqa: PLC0415
+
+    cells = list(dict.fromkeys(r["cell"] for r in rows))
+    cols = min(3, len(cells))
+    fig, axes = plt.subplots(-(-len(cells) // cols), cols, figsize=(4.2 * cols, 3.4 * -(-len(cells) // cols)),
+                             squeeze=False)
+    for ax, cell in zip(axes.ravel(), cells):
+        mine = {r["policy"]: r for r in rows if r["cell"] == cell}
+        for family, colour, label in ((FIXED, "tab:gray", "fixed rate"), (("never",) + INSTANCE + ("always",),
+                                                                          "tab:green", "instance_novelty")):
+            pts = sorted((mine[p]["mb"], mine[p]["completion"]) for p in family if p in mine and p != "never")
+            ax.plot([p[0] for p in pts], [p[1] for p in pts], "o-", color=colour, ms=3, lw=1, label=label)
+        for k, name in enumerate(learned):
+            if name in mine:
+                ax.plot(mine[name]["mb"], mine[name]["completion"], "*", ms=11, color=f"C{k + 3}",
+                        label=Path(name).parent.name or name)
+        if "at:11" in mine:
+            ax.plot(mine["at:11"]["mb"], mine["at:11"]["completion"], "x", color="black", label="at:11")
+        never = mine.get("never", {}).get("completion")
+        ax.set_title(f"{cell}" + (f" (never: {never:.1f} %)" if never is not None else ""), fontsize=9)
+        ax.set_xlabel("MB sent by the team", fontsize=8)
+        ax.set_ylabel("completion %", fontsize=8)
+        ax.grid(alpha=0.3)
+    for ax in axes.ravel()[len(cells):]:
+        ax.axis("off")
+    axes.ravel()[0].legend(fontsize=6, loc="lower right")
+    fig.tight_layout()
+    fig.savefig(png, dpi=110)
+    plt.close(fig)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--setting", default="rl_lite")
+    parser.add_argument("--cells", nargs="+", default=list(CELLS), help="SCENE:WORLD_SEED")
+    parser.add_argument("--learned", nargs="*", default=[], help="policy files (or `learned`)")
+    parser.add_argument("--out", default="runs/learned_vs_fixed")
+    args = parser.parse_args()
+    preset, overrides = parse_setting(args.setting)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    rows_path = out / "rows.jsonl"
+    rows = [json.loads(line) for line in rows_path.read_text().splitlines()] if rows_path.exists() else []
+    done = {(r["setting"], r["cell"], r["policy"]) for r in rows}
+    n = env_config(preset, **overrides).num_agents
+    policies = list(FIXED) + list(INSTANCE) + list(REFERENCE) + list(args.learned)
+    for cell in args.cells:
+        scene, _, world_seed = cell.partition(":")
+        envs: dict[str, object] = {}
+        for name in policies:
+            if (args.setting, cell, name) in done:
+                continue
+            policy = make_policy(name, n, int(world_seed))
+            form = getattr(policy, "action_form", "entries")
+            if form not in envs:
+                envs[form] = parallel_env(preset=preset, scene=scene, seed=int(world_seed),
+                                          **{**overrides, "action_form": form})
+            row = {"setting": args.setting, "cell": cell, "policy": name, **episode(envs[form], policy, int(world_seed))}
+            rows.append(row)
+            with rows_path.open("a") as f:
+                f.write(json.dumps(row) + "\n")
+            print(f"{cell} {name}: {row['completion']:.2f} % {row['mb']:.1f} MB", flush=True)
+        for env in envs.values():
+            env.close()
+    mine = [r for r in rows if r["setting"] == args.setting]
+    text = (f"Setting `{args.setting}`, cells {', '.join(dict.fromkeys(r['cell'] for r in mine))}; the env's completion "
+            "estimate, one episode per cell and policy; margins are paired per cell, mean ± standard error.\n\n"
+            + report(mine, list(args.learned)))
+    (out / "learned_vs_fixed.md").write_text(text)
+    plot(mine, list(args.learned), out / "fronts.png")
+    print(text)
+
+
+if __name__ == "__main__":
+    main()
