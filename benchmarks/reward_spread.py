@@ -80,6 +80,31 @@ def table(rows: list[dict], cost_per_mb: float) -> str:
     if ratios["raw"]:
         lines += ["", f"Median spread / gap: raw {np.median(ratios['raw']):.1f}, normalised "
                       f"{np.median(ratios['normalised']):.1f}."]
+    # the completion part alone (the costs are the same in every world): points against the share of always's gain
+    if all((w, p) in value for w in worlds for p in ("never", "always")):
+        points = {k: r["completion"] for k, r in value.items()}
+        share = {(w, p): (points[w, p] - points[w, "never"]) / (points[w, "always"] - points[w, "never"])
+                 for (w, p) in points}
+        lines += ["", "The completion part alone (costs do not vary between worlds): final completion in points "
+                  "against the share of `always`'s gain over `never` that the schedule reached; paired sd is the "
+                  "standard deviation over worlds of the difference between the two schedules.", "",
+                  "| pair | points: gap | spread / gap | paired sd | share: gap | spread / gap | paired sd |",
+                  "|---|---|---|---|---|---|---|"]
+        parts = {"points": [], "share": []}
+        for p, q in itertools.combinations(sending, 2):
+            common = [w for w in worlds if (w, p) in points and (w, q) in points]
+            if len(common) < 2:
+                continue
+            cells = []
+            for name, src in (("points", points), ("share", share)):
+                diff = [src[w, p] - src[w, q] for w in common]
+                spread = np.mean([np.std([src[w, s] for w in common], ddof=1) for s in (p, q)])
+                parts[name].append(spread / max(abs(np.mean(diff)), 1e-9))
+                cells += [f"{np.mean(diff):+.3f}", f"{parts[name][-1]:.1f}", f"{np.std(diff, ddof=1):.3f}"]
+            lines.append(f"| `{p}` vs `{q}` | " + " | ".join(cells) + " |")
+        if parts["points"]:
+            lines += ["", f"Median spread / gap of the completion part: points {np.median(parts['points']):.2f}, "
+                          f"share {np.median(parts['share']):.2f}."]
     return "\n".join(lines) + "\n"
 
 

@@ -1,10 +1,13 @@
-"""The ``round`` action form: one decision per agent and round, "send everything to every peer now or not".
+"""The ``round`` and ``team`` action forms: one decision per agent and round ("send everything to every peer
+now or not"), or one for the whole team.
 
 The env's action is ``MultiBinary(2 * (N - 1))`` (parameters and rays per peer). Drawn as independent
 Bernoulli entries, a policy that sends a third of the time spreads its messages over rounds like random
 links (``rate:Q``), while at equal bytes whole rounds every K steps (``every:K``) complete more
 (docs/schedules.md). ``RoundGate`` gives an RL library an env whose action is one entry per agent and
-broadcasts it to every entry of the wrapped env, so a policy learns when to talk, not to whom.
+broadcasts it to every entry of the wrapped env, so a policy learns when to talk, not to whom. ``TeamGate``
+makes the team one agent that decides once a round for everyone (the timing study's whole rounds, chosen from
+every agent's observation).
 """
 
 from __future__ import annotations
@@ -24,8 +27,8 @@ one for the whole team, from every agent's observation (``TeamGate``)."""
 def check_action_form(form: str) -> str:
     """``form`` if it is one of ``ACTION_FORMS``; ValueError naming the known ones otherwise."""
     if form == "instances":
-        raise ValueError("the instances action form is not trained here: `openmulti train` trains the entries and round "
-                         "forms; drive the instances form with instance_novelty, or with a trainer of your own on "
+        raise ValueError("the instances action form is not trained here: `openmulti train` trains the entries, round and "
+                         "team forms; drive the instances form with instance_novelty, or with a trainer of your own on "
                          "parallel_env(action_form='instances') (its observation adds the per-slot 'instances' entry)")
     if form not in ACTION_FORMS:
         raise ValueError(f"unknown action form {form!r}: use one of {', '.join(ACTION_FORMS)}")

@@ -315,6 +315,12 @@ update, not more steps per hour: peak 1.13 GB for one rl_small world in a proces
 each for four; docs/profile.md), e.g. --workers 2 --worlds-per-worker 2 on 8 GB. --preset rl_lite is 12 steps on
 shorter tours, 1.5x faster (about 3,000 env steps an hour here against 2,000 at rl_small); whether it ranks schedules as `fast` does
 is docs/transfer.md (so far on one complete cell: 0.80, rl_small 0.67).
+Learning a schedule (docs/learning.md): the team decides once a round from every agent's observation, a
+central critic reads state(), the reward is normalised per episode against never/always (cached), TensorBoard
+logs under OUT/tensorboard,
+  openmulti train --preset rl_lite --action-form team --critic central --reward-baseline never_always
+    --episode-seeds 2 --scenes random:100 random:101 random:102 random:103 random:104 random:105 random:106
+    random:107 --env-steps 1536 --seed 0 --out runs/learn/team_s0
 On a cluster: RLlib's PPO with one env runner per core (the same settings, run folder and policy files),
   openmulti train --backend rllib --ray auto --workers 32 --env-steps 200000 --out runs/train_cluster
 (started on the cluster's head node, or `ray job submit --working-dir . -- openmulti train ...`;

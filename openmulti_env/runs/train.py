@@ -181,6 +181,15 @@ def env_summary(tree, env_kwargs: dict) -> dict:
     return {**summary, **({"overrides": others} if others else {})}
 
 
+def training_title(tree, config) -> str:
+    """The learning curve's title: preset, team, reward and cost, action form and critic."""
+    reward = (f"cost {tree.env.comm_cost_per_mb}/MB" if tree.env.reward_baseline == "none"
+              else f"reward over never/always, cost {tree.env.comm_cost_of_always} x always's bytes")
+    form = "" if config.action_form == "entries" else f", {config.action_form} form"
+    critic = ", central critic" if config.critic == "central" else ""
+    return f"{tree.preset}, {tree.num_agents} agents, {reward}{form}{critic}"
+
+
 def train_command(args) -> int:
     """``openmulti train``: build the env factory and the record, train, say where the policy is."""
     from policies.train import train  # noqa: PLC0415
@@ -210,13 +219,9 @@ def train_command(args) -> int:
         env_kwargs["run__workers"] = 1 if getattr(args, "ray", None) else agent_workers_per_env(config.workers)
     factory = WorkerEnvs(scenes, config.workers * config.worlds_per_worker, args.episodes_per_world, env_kwargs,
                          getattr(args, "episode_seeds", None))
-    cost = tree.env.comm_cost_per_mb
     record = {"command": "openmulti train " + " ".join(shlex.quote(a) for a in sys.argv[2:]), "scenes": list(scenes),
               "env": env_summary(tree, env_kwargs), "experiment": tree_record(tree),
-              "title": f"{tree.preset}, {tree.num_agents} agents, cost {cost}/MB"
-              f"{'' if config.action_form == 'entries' else ', ' + config.action_form + ' form'}"
-              f"{', central critic' if config.critic == 'central' else ''}"
-              f"{', normalised reward' if tree.env.reward_baseline != 'none' else ''}",
+              "title": training_title(tree, config),
               **({"episode_seeds": args.episode_seeds} if getattr(args, "episode_seeds", None) else {})}
     if backend == "rllib":
         from policies.train_rllib import train_rllib  # noqa: PLC0415
