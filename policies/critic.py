@@ -1,6 +1,6 @@
 """A centralised critic (MAPPO's recipe) for the shared decentralised policy: the actor reads the agent's own
-observation, the value function reads ``state()`` too (every agent's map and the ground-truth coverage behind
-the reward), during training only.
+observation, the value function reads ``state()`` (every agent's map and the ground-truth coverage behind the
+reward) and the agent's ``comm``, during training only.
 
 Why SB3 with a critic of our own rather than TorchRL's or RLlib's multi-agent PPO: the trainer, its worker
 processes, checkpoints, policy files and logs are SB3's already, and MAPPO's difference from parameter-shared
@@ -20,7 +20,8 @@ from torch import nn
 
 CRITICS = ("local", "central")
 """``local``: the value function reads what the actor reads (parameter-shared PPO); ``central``: it reads
-``state()`` and the agent's ``comm`` (MAPPO)."""
+``state()`` and the agent's ``comm`` (MAPPO; with the team reward every agent's value is the team's, so the
+critic needs no agent identity: with ``reward="individual"`` it would)."""
 
 
 def check_critic(critic: str) -> str:
@@ -31,14 +32,21 @@ def check_critic(critic: str) -> str:
 
 
 class WithState(BaseParallelWrapper):
-    """The wrapped env with ``state`` (its ``state()``) added to every agent's observation."""
+    """The wrapped env with ``state`` added to every agent's observation, as (N, S, S, C) planes per agent: its
+    ``state()`` (S, S, C N) split by agent. Four axes on purpose: SB3 takes a 3-axis uint8 box for an image and
+    guesses its channel axis from the smallest side, which picks the wrong one once C N >= S (7 agents at 48)."""
 
     def __init__(self, env):
         super().__init__(env)
         if not hasattr(env, "state_space"):
             raise ValueError(f"a central critic reads state(): {type(env).__name__} has no state_space")
         inner = env.observation_space(env.possible_agents[0])
-        self._space = spaces.Dict({**inner.spaces, "state": env.state_space})
+        height, width, channels = env.state_space.shape
+        self.agents_n = len(env.possible_agents)
+        if channels % self.agents_n:
+            raise ValueError(f"state() has {channels} planes, not a whole number per agent of {self.agents_n}")
+        shape = (self.agents_n, height, width, channels // self.agents_n)
+        self._space = spaces.Dict({**inner.spaces, "state": spaces.Box(0, 255, shape, np.uint8)})
 
     def observation_space(self, agent):
         self.env.observation_space(agent)  # names an unknown agent
@@ -47,7 +55,8 @@ class WithState(BaseParallelWrapper):
     def _with_state(self, observations: dict) -> dict:
         if not observations:
             return observations
-        state = np.asarray(self.env.state())
+        flat = np.asarray(self.env.state())
+        state = np.ascontiguousarray(flat.reshape(*flat.shape[:2], self.agents_n, -1).transpose(2, 0, 1, 3))
         return {agent: {**obs, "state": state} for agent, obs in observations.items()}
 
     def reset(self, seed: int | None = None, options: dict | None = None):
@@ -70,8 +79,8 @@ class StateFactory:
 
 
 class StateFeatures(nn.Module):
-    """The critic's features: a CNN over ``state`` (B, C, H, W) in [0, 1] and an MLP over the agent's ``comm``
-    (in the team form (B, N, K), flattened), to ``features``."""
+    """The critic's features: a CNN over ``state`` ((B, N, S, S, C) floats in [0, 255], every agent's planes as
+    channels) and an MLP over the agent's ``comm`` (in the team form (B, N, K), flattened), to ``features``."""
 
     def __init__(self, state_channels: int, comm_size: int, features: int = 128):
         super().__init__()
@@ -84,8 +93,10 @@ class StateFeatures(nn.Module):
         self.trunk = nn.Sequential(nn.Linear(features + 64, features), nn.ReLU())
 
     def forward(self, observations: dict[str, torch.Tensor]) -> torch.Tensor:
+        state = observations["state"]  # (B, N, S, S, C): agent-major planes, as state() orders them
+        planes = state.permute(0, 2, 3, 1, 4).flatten(3).permute(0, 3, 1, 2) / 255.0
         comm = observations["comm"].flatten(1)
-        return self.trunk(torch.cat([self.cnn(observations["state"]), self.comm(comm)], dim=1))
+        return self.trunk(torch.cat([self.cnn(planes), self.comm(comm)], dim=1))
 
 
 def central_critic_policy():
@@ -99,10 +110,9 @@ def central_critic_policy():
                 raise ValueError("a central critic reads 'state': wrap the env in policies.critic.WithState")
             kwargs["share_features_extractor"] = False
             super().__init__(observation_space, action_space, lr_schedule, **kwargs)
-            state = observation_space.spaces["state"]
-            channels = state.shape[0] if state.shape[0] < state.shape[-1] else state.shape[-1]  # SB3 moves channels first
+            agents, _, _, planes = observation_space.spaces["state"].shape  # WithState's (N, S, S, C)
             comm = int(np.prod(observation_space.spaces["comm"].shape))
-            self.vf_features_extractor = StateFeatures(channels, comm, self.features_dim)
+            self.vf_features_extractor = StateFeatures(agents * planes, comm, self.features_dim)
             self.optimizer = self.optimizer_class(self.parameters(), lr=lr_schedule(1), **self.optimizer_kwargs)
 
     return CentralCriticPolicy

@@ -111,7 +111,10 @@ def test_the_team_gate_is_a_parallel_env_with_one_agent_that_sends_for_everyone(
     space = env.observation_space("team")
     assert space["map"].shape[0] == 3 and space["comm"].shape == (3, comm_size(3)) and "state" in space.spaces
     observations, _ = env.reset(seed=0)
-    assert observations["team"]["state"].shape == env.env.state_space.shape
+    state = env.env.env.state()  # (S, S, 7N) -> (N, S, S, 7): agent k's planes are its 7 of state()
+    assert observations["team"]["state"].shape == (3,) + state.shape[:2] + (7,) == space["state"].shape
+    np.testing.assert_array_equal(observations["team"]["state"][1], state[..., 7:14])
+    np.testing.assert_array_equal(observations["team"]["map"][2], state[..., 14:20])
     _, rewards, _, _, infos = env.step({"team": np.array([1])})
     assert infos["team"]["bytes_sent_total"] > 0
     _, _, _, _, infos = env.step({"team": np.array([0])})
@@ -145,6 +148,21 @@ def test_training_with_a_central_critic_ships_a_policy_and_tensorboard_logs(tmp_
         assert len(set(actions.ravel().tolist())) == 1
     with pytest.raises(ValueError, match="other settings"):  # a run folder keeps its critic
         train(factory, TrainConfig(**{**config.__dict__, "critic": "local"}), tmp_path / "run", {}, progress=False)
+
+
+def test_the_central_critic_reads_every_agent_s_planes_in_state_order_for_any_team_size():
+    import torch
+
+    from policies.critic import StateFeatures
+
+    torch.manual_seed(0)
+    critic = StateFeatures(7 * 8, 10, 16)  # 8 agents at 48: 56 planes, more than the map's side
+    state = torch.rand(2, 8, 48, 48, 7) * 255
+    flat = state.permute(0, 2, 3, 1, 4).reshape(2, 48, 48, 56)  # state()'s (S, S, 7N) layout
+    expected = critic.trunk(torch.cat([critic.cnn(flat.permute(0, 3, 1, 2) / 255.0),
+                                       critic.comm(torch.zeros(2, 10))], dim=1))
+    got = critic(dict(state=state, comm=torch.zeros(2, 10)))
+    torch.testing.assert_close(got, expected)
 
 
 def test_a_world_cycle_replays_its_worlds_from_a_fixed_set_of_episode_seeds(monkeypatch):

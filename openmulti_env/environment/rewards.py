@@ -1,9 +1,8 @@
 """The env's rewards, and the per-world baseline that gives them signal.
 
 Raw (``env.reward_baseline="none"``): a step pays the gain of the completion ratio (the team's mean, or the
-agent's own) minus ``comm_cost_per_mb`` x the megabytes sent. Across worlds those returns differ by ten times
-what separates two schedules in one world (docs/schedules.md, learning): a room that maps easily pays more
-whatever the team sends, and that spread drowns the policy's share of the return.
+agent's own) minus ``comm_cost_per_mb`` x the megabytes sent: a room that maps easily pays more whatever the
+team sends, and a room of big networks costs more (docs/learning.md measures how much that spread weighs).
 
 Normalised (``"never_always"``): the same episode (world and episode seed) is played twice more, once with
 ``never`` and once with ``always``, and a step pays
@@ -12,7 +11,7 @@ Normalised (``"never_always"``): the same episode (world and episode seed) is pl
 
 so an episode's return is the share of what talking can add in *this* world that the team got, minus the
 price of the share of ``always``'s bytes it spent: 0 for ``never``, 1 - comm_cost_of_always for ``always``,
-in every world. Subtracting never's gain step by step also takes out each agent's own mapping progress,
+in every world where ``always`` adds at least ``GAIN_FLOOR`` (and less ``budget_penalty`` for refused messages). Subtracting never's gain step by step also takes out each agent's own mapping progress,
 which no communication decision moves. The two episodes are cached on disk per (world, episode seed and
 everything that shapes the maps), so a training run that revisits its worlds' episodes pays them once.
 """
@@ -23,14 +22,13 @@ import hashlib
 import json
 import os
 from dataclasses import asdict, dataclass
-from importlib import metadata
+from functools import lru_cache
 from pathlib import Path
 from typing import Callable
 
 import numpy as np
 
 from mapping.perception.model_cache import cache_root
-from openmulti_env.experiment.tree import REWARD_BASELINES  # noqa: F401  (re-exported: the modes this module pays)
 
 GAIN_FLOOR = 0.02
 """Smallest ``always - never`` final completion (a fraction) the normalised reward divides by: a world where
@@ -62,10 +60,12 @@ class BaselineEpisodes:
                                 np.asarray(record["always_mb"], float))
 
     def gain_share(self, step: int, team: bool) -> tuple[np.ndarray, np.ndarray]:
-        """(never's gain at ``step`` (1-based), the denominator ``always - never`` at the end), per agent or, with
-        ``team``, the team's mean broadcast to every agent."""
-        row = min(step, len(self.never) - 1)
-        never_gain = self.never[row] - self.never[row - 1]
+        """(never's gain at ``step`` (1-based; 0 past the end of the stored episode), the denominator ``always -
+        never`` at the end), per agent or, with ``team``, the team's mean broadcast to every agent."""
+        if step < len(self.never):
+            never_gain = self.never[step] - self.never[step - 1]
+        else:
+            never_gain = np.zeros_like(self.never[-1])
         span = self.always[-1] - self.never[-1]
         if team:
             never_gain = np.full_like(never_gain, never_gain.mean())
@@ -73,17 +73,29 @@ class BaselineEpisodes:
         return never_gain, np.maximum(span, GAIN_FLOOR)
 
 
+@lru_cache(maxsize=1)
+def code_digest() -> str:
+    """A digest of the code that plays an episode (the learner, the world and its frames, the env's rounds and
+    rewards): cached baselines are played again after any change to it, not read stale."""
+    root = Path(__file__).resolve().parents[2]
+    digest = hashlib.sha256()
+    for folder in (root / "mapping", root / "openmulti_env" / "world"):
+        for path in sorted(folder.rglob("*.py")):
+            digest.update(str(path.relative_to(root)).encode() + path.read_bytes())
+    for path in (Path(__file__), Path(__file__).with_name("parallel_env.py")):
+        digest.update(path.read_bytes())
+    return digest.hexdigest()[:16]
+
+
 def baseline_key(tree, world_seed: int, episode_seed: int) -> str:
     """A digest of what decides the two episodes: the scene, both seeds, the world, perception, team and channel
-    settings, the probes, the package version (the env's reward and observation settings do not enter)."""
-    try:
-        version = metadata.version("openmulti")
-    except metadata.PackageNotFoundError:
-        version = "unknown"
+    settings, the horizon, the probes, the learner and device, and the code (the env's reward and observation
+    settings do not enter)."""
     parts = {"scene": tree.scene, "world_seed": int(world_seed), "episode_seed": int(episode_seed),
              "world": asdict(tree.world), "perception": asdict(tree.perception), "team": asdict(tree.team),
-             "channel": asdict(tree.channel), "probe_points": tree.env.probe_points, "format": BASELINE_FORMAT,
-             "version": version}
+             "channel": asdict(tree.channel), "probe_points": tree.env.probe_points, "horizon": tree.env.horizon,
+             "learner": tree.run.learner, "device": str(tree.run.device), "format": BASELINE_FORMAT,
+             "code": code_digest()}
     return hashlib.sha256(json.dumps(parts, sort_keys=True, default=str).encode()).hexdigest()[:32]
 
 
