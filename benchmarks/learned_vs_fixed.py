@@ -1,7 +1,7 @@
 """Learned schedules against the fixed-rate front and ``instance_novelty`` at equal bytes, on unseen cells.
 
 Each cell is a scene and world seed no training run used (3 scenes x 3 seeds by default; training walks
-``random:SEED`` rooms); every policy plays the cell's one episode (episode seed = the world seed) on the env
+``random:SEED`` rooms); every policy plays the cell's one episode (reset with the world seed) on the env
 (the env's completion estimate, team mean, and the MB the team sent). Per cell, two fronts in (MB, completion):
 
 - the fixed-rate front: ``never``, ``every:K``, ``rate:Q``, ``always``, their upper envelope, linear between points;
@@ -43,11 +43,13 @@ REFERENCE = ("at:11",)
 
 
 def front(points: list[tuple[float, float]]):
-    """The upper envelope of (MB, completion) points as a function of MB (linear between points, flat past the last)."""
-    pts = sorted(points)
+    """The Pareto front of (MB, completion) points (each kept point completes more than every cheaper one) as a
+    function of MB: straight lines between kept points, flat past the last (not their concave hull: a schedule
+    that mixed two others round by round is not on it)."""
+    pts = sorted(points, key=lambda p: (p[0], -p[1]))
     keep: list[tuple[float, float]] = []
-    for mb, c in pts:  # non-decreasing in MB: a point under an earlier, cheaper one is dominated
-        if keep and c <= keep[-1][1]:
+    for mb, c in pts:  # a point under an earlier, cheaper (or equally cheap) one is dominated
+        if keep and (c <= keep[-1][1] or mb == keep[-1][0]):
             continue
         keep.append((mb, c))
     xs, ys = np.array([p[0] for p in keep]), np.array([p[1] for p in keep])

@@ -61,12 +61,19 @@ def main() -> None:
             ax.set_title(title, fontsize=10)
             ax.set_xlabel("env steps")
             ax.grid(alpha=0.3)
+        cells = []
         for run, log in zip(args.group[k][1:], logs):
             ret = binned(log, "return", edges)
             valid = np.flatnonzero(~np.isnan(ret))
             first, final = valid[0], valid[-1]
-            lines.append(f"| {label} | {Path(run).name} | {len(log['return'])} | {ret[first]:.3f} | {ret[final]:.3f} | "
-                         f"{binned(log, 'completion', edges)[final]:.1f} | {binned(log, 'mb', edges)[final]:.1f} |")
+            cells.append((len(log["return"]), ret[first], ret[final], binned(log, "completion", edges)[final],
+                          binned(log, "mb", edges)[final]))
+            lines.append(f"| {label} | {Path(run).name} | {cells[-1][0]} | {cells[-1][1]:.3f} | {cells[-1][2]:.3f} | "
+                         f"{cells[-1][3]:.1f} | {cells[-1][4]:.1f} |")
+        if len(cells) > 1:
+            mean = np.mean(np.array(cells), axis=0)
+            lines.append(f"| {label} | **mean of {len(cells)}** | {mean[0]:.0f} | {mean[1]:.3f} | {mean[2]:.3f} | "
+                         f"{mean[3]:.1f} | {mean[4]:.1f} |")
     axes[0].legend(fontsize=8, loc="best")
     fig.suptitle("mean over runs, band: lowest to highest run", fontsize=10)
     fig.tight_layout()

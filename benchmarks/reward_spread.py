@@ -83,8 +83,8 @@ def table(rows: list[dict], cost_per_mb: float) -> str:
     # the completion part alone (the costs are the same in every world): points against the share of always's gain
     if all((w, p) in value for w in worlds for p in ("never", "always")):
         points = {k: r["completion"] for k, r in value.items()}
-        share = {(w, p): (points[w, p] - points[w, "never"]) / (points[w, "always"] - points[w, "never"])
-                 for (w, p) in points}
+        share = {(w, p): (points[w, p] - points[w, "never"]) / max(points[w, "always"] - points[w, "never"], 2.0)
+                 for (w, p) in points}  # floored at 2 points, as the env's reward (GAIN_FLOOR)
         lines += ["", "The completion part alone (costs do not vary between worlds): final completion in points "
                   "against the share of `always`'s gain over `never` that the schedule reached; paired sd is the "
                   "standard deviation over worlds of the difference between the two schedules.", "",
@@ -141,7 +141,9 @@ def main() -> None:
                   f"{row['normalised']:.3f} ({row['wall_s']:.0f} s)", flush=True)
         env.close()
     if cost is None:
-        cost = parallel_env(preset=preset, **overrides).config.env.comm_cost_per_mb
+        from openmulti_env.environment.config import env_config  # noqa: PLC0415
+
+        cost = env_config(preset, **overrides).env.comm_cost_per_mb
     mine = [r for r in rows if r["setting"] == args.setting and r["episode_seed"] == args.episode_seed]
     text = table(mine, cost)
     (out / "reward_spread.md").write_text(text)

@@ -71,7 +71,7 @@ class TeamGate(ParallelEnv):
     """The team as one agent, ``team``: it reads every agent's ``map``, ``comm`` and ``links`` stacked (agents first; and
     ``state`` when the wrapped env's observations carry it, ``policies.critic.WithState``) and acts once a round
     with ``MultiBinary(1)``: 1 sends everything on every entry of every agent, 0 nothing. Its reward is the
-    agents' mean (the team reward every agent gets). Deciding for the team needs each agent's observation in
+    agents' mean (with ``reward="team"`` the team reward every agent gets). Deciding for the team needs each agent's observation in
     one place: a coordinator that hears a few hundred bytes from each agent a round, which this env does not
     count (a parameter message is tens of kilobytes per instance)."""
 

@@ -110,7 +110,8 @@ class CommPolicyNetwork(nn.Module):
     def act(self, map_hwc: np.ndarray, comm: np.ndarray, rng: np.random.Generator | None = None,
             links: np.ndarray | None = None) -> np.ndarray:
         """(B, actions) int8: each Bernoulli head drawn with ``rng`` (the policy as trained), or its mode
-        (logit > 0) when ``rng`` is None; a ``round`` head's draw is every entry of its agent."""
+        (logit > 0) when ``rng`` is None; a ``round`` head's draw is every entry of its agent; in the ``team`` form
+        the batch is one team and one draw (or mode) is every entry of every agent."""
         features = self.features.observe(map_hwc, comm, links)
         if self.config.action_form == "team":  # the batch is one team: one decision for all of it
             logits = self.action(team_pool(features[None]))

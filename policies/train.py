@@ -58,7 +58,7 @@ class TrainConfig:
     """The policy reads the ``links`` observation (which links were up, what they carry) beside ``comm``: needed
     to time messages when links come and go (``link_range_m``, ``link_mb_per_round``)."""
     tensorboard: bool = True
-    """TensorBoard logs under ``OUT/tensorboard`` (episodes at env steps; PPO's losses under ``ppo``)."""
+    """TensorBoard logs under ``OUT/tensorboard`` (episodes at env steps; PPO's losses under ``ppo``); sb3 backend."""
 
 
 def same_run(old: dict, new: dict) -> bool:
@@ -207,10 +207,9 @@ def train(env_factory: Callable[[int], object], config: TrainConfig, out: str | 
     """Train (or resume) in ``out``; returns the path of the best policy file (``out/best.json``)."""
     from stable_baselines3 import PPO  # noqa: PLC0415
     from stable_baselines3.common.callbacks import BaseCallback  # noqa: PLC0415
-
-    from policies.files import save_policy  # noqa: PLC0415
     from stable_baselines3.common.utils import set_random_seed  # noqa: PLC0415
 
+    from policies.files import save_policy  # noqa: PLC0415
     from policies.critic import StateFactory, central_critic_policy, check_critic  # noqa: PLC0415
     from policies.gate import GatedFactory, TeamFactory, check_action_form  # noqa: PLC0415
     from policies.network import NetworkConfig  # noqa: PLC0415
@@ -269,37 +268,39 @@ def train(env_factory: Callable[[int], object], config: TrainConfig, out: str | 
         def _on_step(self) -> bool:
             log.step(np.asarray(self.locals["rewards"], float), np.asarray(self.locals["dones"]),
                      list(self.locals["infos"]), self.num_timesteps // entries_per_world)
-            if board is not None:
-                board.episodes(log.rows)
             return True
 
     # ---- learn in chunks: checkpoint, policy files, log after each -----------------------------------------
     best = log.rolling_return(config.rolling) if (out / "best.json").exists() else -np.inf
     from tqdm import tqdm  # noqa: PLC0415
 
-    with tqdm(total=config.total_env_steps, initial=min(model.num_timesteps // entries_per_world, config.total_env_steps),
-              desc="training", unit="env step", disable=not progress) as bar:
-        while model.num_timesteps // entries_per_world < config.total_env_steps:
-            before = model.num_timesteps
-            model.learn(total_timesteps=config.chunk_env_steps * entries_per_world, reset_num_timesteps=False,
-                        callback=Logging())
-            save_training_state(checkpoint, model.get_parameters(),
-                                {"num_timesteps": int(model.num_timesteps), "n_updates": int(model._n_updates)})
-            env_steps = model.num_timesteps // entries_per_world
-            record = {**settings, "env_steps": env_steps, "episodes": len(log.rows),
-                      "rolling_return": log.rolling_return(config.rolling)}
-            save_policy(out / "latest", export_network(model, network_config), num_agents, record)
-            if log.rows and log.rolling_return(config.rolling) > best:
-                best = log.rolling_return(config.rolling)
-                save_policy(out / "best", export_network(model, network_config), num_agents, record)
-            log.write()
-            log.plot(out / "learning_curve.png", f"{training_record.get('title', 'training')}: {len(log.rows)} "
-                                                 f"episodes, {env_steps} env steps")
-            bar.update((model.num_timesteps - before) // entries_per_world)
-            bar.set_postfix(episodes=len(log.rows), rolling_return=f"{log.rolling_return(config.rolling):.3f}")
-    vec.close()
-    if board is not None:
-        board.close()
+    try:
+        with tqdm(total=config.total_env_steps, initial=min(model.num_timesteps // entries_per_world, config.total_env_steps),
+                  desc="training", unit="env step", disable=not progress) as bar:
+            while model.num_timesteps // entries_per_world < config.total_env_steps:
+                before = model.num_timesteps
+                model.learn(total_timesteps=config.chunk_env_steps * entries_per_world, reset_num_timesteps=False,
+                            callback=Logging())
+                save_training_state(checkpoint, model.get_parameters(),
+                                    {"num_timesteps": int(model.num_timesteps), "n_updates": int(model._n_updates)})
+                env_steps = model.num_timesteps // entries_per_world
+                record = {**settings, "env_steps": env_steps, "episodes": len(log.rows),
+                          "rolling_return": log.rolling_return(config.rolling)}
+                save_policy(out / "latest", export_network(model, network_config), num_agents, record)
+                if log.rows and log.rolling_return(config.rolling) > best:
+                    best = log.rolling_return(config.rolling)
+                    save_policy(out / "best", export_network(model, network_config), num_agents, record)
+                log.write()
+                if board is not None:  # with the CSV, so a resumed run writes no episode twice
+                    board.episodes(log.rows)
+                log.plot(out / "learning_curve.png", f"{training_record.get('title', 'training')}: {len(log.rows)} "
+                                                     f"episodes, {env_steps} env steps")
+                bar.update((model.num_timesteps - before) // entries_per_world)
+                bar.set_postfix(episodes=len(log.rows), rolling_return=f"{log.rolling_return(config.rolling):.3f}")
+    finally:
+        vec.close()
+        if board is not None:
+            board.close()
     if not (out / "best.json").exists():
         save_policy(out / "best", export_network(model, network_config), num_agents,
                     {**settings, "env_steps": model.num_timesteps // entries_per_world, "episodes": len(log.rows)})

@@ -200,3 +200,19 @@ def test_a_world_cycle_replays_its_worlds_from_a_fixed_set_of_episode_seeds(monk
     assert seeds == [("a", 0), ("a", 1), ("b", 0), ("b", 1), ("a", 2), ("a", 0), ("b", 2), ("b", 0)]
     with pytest.raises(ValueError, match="episode_seeds must be at least 1"):
         train_module.WorldCycle(("a",), episode_seeds=0)
+
+
+@pytest.mark.parametrize("options, message", [
+    (["--backend", "rllib", "--critic", "central"], "sb3 backend only"),
+    (["--backend", "rllib", "--read-links", "true"], "sb3 backend only"),
+    (["--critic", "both"], "unknown critic"),
+])
+def test_training_options_that_cannot_work_are_refused_by_name(tmp_path, capsys, options, message):
+    pytest.importorskip("stable_baselines3")
+    pytest.importorskip("ray.rllib")
+    from openmulti_env.runs.cli import main
+
+    code = main(["train", "--preset", "rl_tiny", "--agents", "2", "--workers", "1", "--env-steps", "8",
+                 "--out", str(tmp_path / "run"), *options])
+    assert code != 0 and message in capsys.readouterr().err
+    assert not (tmp_path / "run" / "checkpoint.pt").exists()

@@ -75,7 +75,7 @@ class WorldCycle(ParallelEnv):
             self.env.close()
             self.env = OpenMultiParallelEnv(scene=scene, **self.env_kwargs)
         if self.episode_seeds is not None:  # the k-th episode on this world (over every visit), seeds 0..K-1 in turn
-            visit = (self.start + block) // len(self.scenes)  # passes over the list so far
+            visit = (self.start + block) // len(self.scenes)  # rises by one per visit of this world (offset by start)
             seed = (visit * self.episodes_per_world + self.episodes % self.episodes_per_world) % self.episode_seeds
         observations, infos = self.env.reset(seed=seed, options=options)
         return observations, self._with_summary(infos)
@@ -168,7 +168,8 @@ def agent_workers_per_env(workers: int) -> int:
 NOT_IDENTITY = {"run__workers"}
 """Env keywords that change how fast an episode runs, never what it gives: a run folder resumes across them."""
 
-SUMMARISED = {"world__num_agents", "env__reward", "env__comm_cost_per_mb", "channel__budget_mb", "env__horizon"}
+SUMMARISED = {"world__num_agents", "env__reward", "env__comm_cost_per_mb", "channel__budget_mb", "env__horizon",
+              "env__reward_baseline", "env__comm_cost_of_always"}
 
 
 def env_summary(tree, env_kwargs: dict) -> dict:
@@ -176,7 +177,9 @@ def env_summary(tree, env_kwargs: dict) -> dict:
     under the same), and any other override given."""
     summary = {"preset": tree.preset, "num_agents": tree.num_agents, "reward": tree.env.reward,
                "comm_cost_per_mb": tree.env.comm_cost_per_mb, "comm_budget_mb": tree.channel.budget_mb,
-               **({"horizon": tree.env.horizon} if tree.env.horizon else {})}
+               **({"horizon": tree.env.horizon} if tree.env.horizon else {}),
+               **({"reward_baseline": tree.env.reward_baseline, "comm_cost_of_always": tree.env.comm_cost_of_always}
+                  if tree.env.reward_baseline != "none" else {})}
     others = {k: v for k, v in env_kwargs.items() if k not in SUMMARISED | NOT_IDENTITY | {"preset", "config"}}
     return {**summary, **({"overrides": others} if others else {})}
 
@@ -211,9 +214,16 @@ def train_command(args) -> int:
     if config.action_form != "entries" and backend == "rllib":
         raise ValueError(f"--action-form {config.action_form} trains with the sb3 backend only (RLlib's module draws one "
                          "Bernoulli per action entry)")
+    if backend == "rllib" and (config.critic != "local" or config.read_links):
+        raise ValueError("--critic central and --read-links train with the sb3 backend only (RLlib's module here is the "
+                         "shared actor-critic over map and comm)")
     scenes = tuple(args.scenes) if args.scenes else DEFAULT_TRAIN_SCENES
     check_training_scenes(scenes)
     env_kwargs, tree = env_settings(args)
+    if tree.env.reward_baseline != "none" and not getattr(args, "episode_seeds", None):
+        print("[openmulti] warning: --reward-baseline never_always without --episode-seeds K plays two more episodes "
+              "(never, always) for every training episode, each on a fresh seed that is never reused; --episode-seeds 2 "
+              "plays them once per world and seed", file=sys.stderr)
     if tree.run.workers is None:  # the worker processes split the cores: each env's agents take turns on its own
         # (a Ray cluster's env runners get one CPU each, whatever this machine has)
         env_kwargs["run__workers"] = 1 if getattr(args, "ray", None) else agent_workers_per_env(config.workers)
