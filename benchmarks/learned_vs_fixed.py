@@ -111,7 +111,7 @@ def plot(rows: list[dict], learned: list[str], png: Path) -> None:
         for k, name in enumerate(learned):
             if name in mine:
                 ax.plot(mine[name]["mb"], mine[name]["completion"], "*", ms=11, color=f"C{k + 3}",
-                        label=Path(name).parent.name or name)
+                        label=f"{Path(name).parent.name}/{Path(name).stem}" if Path(name).parent.name else name)
         if "at:11" in mine:
             ax.plot(mine["at:11"]["mb"], mine["at:11"]["completion"], "x", color="black", label="at:11")
         never = mine.get("never", {}).get("completion")
