@@ -44,16 +44,20 @@ REFERENCE = ("at:11",)
 """Not on either front: the whole map once in the last round (rl_lite's 12 rounds), for reading the table."""
 
 
-def front(points: list[tuple[float, float]]):
-    """The Pareto front of (MB, completion) points (each kept point completes more than every cheaper one) as a
-    function of MB: straight lines between kept points, flat past the last (not their concave hull: a schedule
-    that mixed two others round by round is not on it)."""
-    pts = sorted(points, key=lambda p: (p[0], -p[1]))
+def front_points(points: list[tuple[float, float]]) -> list[tuple[float, float]]:
+    """The Pareto front of (MB, completion) points: each kept point completes more than every cheaper one."""
     keep: list[tuple[float, float]] = []
-    for mb, c in pts:  # a point under an earlier, cheaper (or equally cheap) one is dominated
+    for mb, c in sorted(points, key=lambda p: (p[0], -p[1])):  # under an earlier, cheaper (or equally cheap) one: dominated
         if keep and (c <= keep[-1][1] or mb == keep[-1][0]):
             continue
         keep.append((mb, c))
+    return keep
+
+
+def front(points: list[tuple[float, float]]):
+    """``front_points`` as a function of MB: straight lines between kept points, flat past the last (not their
+    concave hull: a schedule that mixed two others round by round is not on it)."""
+    keep = front_points(points)
     xs, ys = np.array([p[0] for p in keep]), np.array([p[1] for p in keep])
     return lambda mb: float(np.interp(mb, xs, ys))
 
@@ -108,8 +112,10 @@ def plot(rows: list[dict], learned: list[str], png: Path) -> None:
         mine = {r["policy"]: r for r in rows if r["cell"] == cell}
         for family, colour, label in ((FIXED, "tab:gray", "fixed rate"), (("never",) + INSTANCE + ("always",),
                                                                           "tab:green", "instance_novelty")):
-            pts = sorted((mine[p]["mb"], mine[p]["completion"]) for p in family if p in mine and p != "never")
-            ax.plot([p[0] for p in pts], [p[1] for p in pts], "o-", color=colour, ms=3, lw=1, label=label)
+            pts = [(mine[p]["mb"], mine[p]["completion"]) for p in family if p in mine]
+            ax.plot([p[0] for p in pts], [p[1] for p in pts], "o", color=colour, ms=3)
+            kept = front_points(pts)
+            ax.plot([p[0] for p in kept], [p[1] for p in kept], "-", color=colour, lw=1, label=f"{label} front")
         for k, name in enumerate(learned):
             if name in mine:
                 ax.plot(mine[name]["mb"], mine[name]["completion"], "*", ms=11, color=f"C{k + 3}",
