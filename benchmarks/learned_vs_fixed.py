@@ -118,8 +118,8 @@ def plot(rows: list[dict], learned: list[str], png: Path) -> None:
             ax.plot([p[0] for p in kept], [p[1] for p in kept], "-", color=colour, lw=1, label=f"{label} front")
         for k, name in enumerate(learned):
             if name in mine:
-                ax.plot(mine[name]["mb"], mine[name]["completion"], "*", ms=11, color=f"C{k + 3}",
-                        label=f"{Path(name).parent.name}/{Path(name).stem}" if Path(name).parent.name else name)
+                ax.plot(mine[name]["mb"], mine[name]["completion"], "*", ms=11, color=plt.cm.tab20(k % 20),
+                        label=f"{Path(name).parent.name}/{Path(name).name}" if Path(name).parent.name else name)
         if "at:11" in mine:
             ax.plot(mine["at:11"]["mb"], mine["at:11"]["completion"], "x", color="black", label="at:11")
         never = mine.get("never", {}).get("completion")
