@@ -121,11 +121,11 @@ from pettingzoo.utils import parallel_to_aec, wrappers
 
 from mapping.perception import shared_text_encoder
 from mapping.runtime import torch_threads
-from mapping.team import RoundPlan, Team
+from mapping.team import Team
 from openmulti_env.environment.actions import ActionError, action_size, actions_to_plan
 from openmulti_env.environment.config import env_config, env_workers
 from openmulti_env.experiment import Experiment
-from openmulti_env.environment.rewards import RewardBaselines, step_rewards
+from openmulti_env.environment.rewards import RewardBaselines, play_fixed, step_rewards
 from openmulti_env.environment.render import AGENT_COLOURS, agent_tile, compose, team_panel
 from openmulti_env.environment.observation import ProbeRaster, TeamObserver, slot_instances
 from openmulti_env.world.cache import cached_world
@@ -239,22 +239,10 @@ class OpenMultiParallelEnv(ParallelEnv, EzPickle):
         return Team(streams, cfg.team, self._vocabulary, seed=episode_seed, channel=cfg.channel, device=cfg.run.device,
                     workers=env_workers(cfg), processes=cfg.run.processes, learner=cfg.run.learner)
 
-    def _play_fixed(self, episode_seed: int, send: bool) -> tuple[np.ndarray, np.ndarray]:
-        """``always`` (``send``) or ``never`` on the episode ``episode_seed``: (T + 1, N) completions, (N,) MB sent
-        (the normalised reward's baseline, ``environment.rewards``)."""
-        team = self._new_team(episode_seed)
-        n = self.config.num_agents
-        plan = RoundPlan.always(n) if send else RoundPlan.never(n)
-        completions = [np.zeros(n)]
-        try:
-            while not team.done and (self.config.env.horizon is None or len(completions) <= self.config.env.horizon):
-                team.round(plan)
-                covered = team.surface_coverage(self._probe_points, self._probe_normals)
-                completions.append(np.array([float(np.mean(c)) for c in covered]))
-            mb = np.array([s.bytes_sent_total for s in team.snapshots()], float) / 1e6
-        finally:
-            team.release()
-        return np.stack(completions), mb
+    def _fixed_player(self):
+        """``play(episode_seed, send)`` of ``never`` / ``always`` on this env's world (the reward's baselines)."""
+        return lambda seed, send: play_fixed(lambda: self._new_team(seed), self.config.num_agents, self.config.env.horizon,
+                                             self._probe_points, self._probe_normals, send)
 
     def _build_world(self) -> None:
         """The world once per env (cached on disk across envs and processes), with its probes and grid."""
@@ -277,7 +265,7 @@ class OpenMultiParallelEnv(ParallelEnv, EzPickle):
         self._floor = floor.reshape(cfg.env.map_size, cfg.env.map_size)
         self._vocabulary = None
         self._frames = RenderCache(self.world, cfg.env.frame_cache_mb)
-        self._baselines = (RewardBaselines(cfg, self.world_seed, self._play_fixed)
+        self._baselines = (RewardBaselines(cfg, self.world_seed, self._fixed_player())
                            if cfg.env.reward_baseline != "none" else None)
 
     def step(self, actions: dict):

@@ -29,6 +29,7 @@ from typing import Callable
 import numpy as np
 
 from mapping.perception.model_cache import cache_root
+from mapping.team import RoundPlan
 
 GAIN_FLOOR = 0.02
 """Smallest ``always - never`` final completion (a fraction) the normalised reward divides by: a world where
@@ -132,6 +133,24 @@ class RewardBaselines:
             os.replace(tmp, path)
         self.memory[episode_seed] = found
         return found
+
+
+def play_fixed(new_team: Callable[[], object], num_agents: int, horizon: int | None, points: np.ndarray,
+               normals: np.ndarray, send: bool) -> tuple[np.ndarray, np.ndarray]:
+    """``always`` (``send``) or ``never`` on a fresh team from ``new_team()``: (T + 1, N) completions (the share of
+    the probe ``points`` each agent's map reproduces after each round, 0 at the start) and (N,) MB sent."""
+    team = new_team()
+    plan = RoundPlan.always(num_agents) if send else RoundPlan.never(num_agents)
+    completions = [np.zeros(num_agents)]
+    try:
+        while not team.done and (horizon is None or len(completions) <= horizon):
+            team.round(plan)
+            covered = team.surface_coverage(points, normals)
+            completions.append(np.array([float(np.mean(c)) for c in covered]))
+        mb = np.array([s.bytes_sent_total for s in team.snapshots()], float) / 1e6
+    finally:
+        team.release()
+    return np.stack(completions), mb
 
 
 def step_rewards(env_settings, gains: np.ndarray, mb: np.ndarray, refused: np.ndarray, step: int,
