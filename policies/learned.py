@@ -3,7 +3,8 @@
 Acts on every agent's observation with one shared network (parameter sharing, as it was trained), drawing
 each action entry from its Bernoulli with a seeded generator: the policy PPO trained. Its mode (logit > 0,
 ``learned:mode``) is another policy: a network that learned to send each entry a third of the time has the
-mode "never send".
+mode "never send". A ``team`` network with an ``instance_novelty`` payload decides when the team sends and the rule
+what (the env in the ``instances`` action form, ``action_form`` below).
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ from typing import Mapping
 import numpy as np
 
 from policies.files import load_policy
+from policies.gate import payload_rule
 from policies.scripted import PolicyError
 
 SHIPPED = Path(__file__).parent / "trained" / "learned.json"
@@ -28,6 +30,9 @@ class LearnedPolicy:
     def __init__(self, network, record: dict, source: str, seed: int | None = 0):
         self.network, self.record, self.source = network, record, source
         self.rng = None if seed is None else np.random.default_rng(seed)
+        self.rule = payload_rule(network.config.payload)
+        self.action_form = "entries" if self.rule is None else "instances"
+        """The env's action form this policy acts in (runners build the env with it)."""
 
     @staticmethod
     def load(name: str, num_agents: int, seed: int | None = 0) -> "LearnedPolicy":
@@ -59,4 +64,7 @@ class LearnedPolicy:
             if links[0].size != config.link_inputs:
                 raise PolicyError(f"{self.source} reads {config.link_inputs} link values; the env gives {links[0].size}")
         actions = self.network.act(maps, comms, self.rng, links)
+        if self.rule is not None:  # the team's decision gates what the rule picks for each agent
+            picked = self.rule(observations, None, step)
+            return {a: picked[a] * np.int8(actions[0, 0]) for a in agents}
         return {a: actions[k] for k, a in enumerate(agents)}

@@ -18,7 +18,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from policies.gate import check_action_form
+from policies.gate import check_action_form, payload_rule
 
 
 @dataclass(frozen=True)
@@ -38,9 +38,13 @@ class NetworkConfig:
     link_inputs: int = 0
     """Values of the ``links`` observation read beside ``comm`` ((N - 1) x ``LINK_STATE``; 0: none, as every file
     written before the link scenarios)."""
+    payload: str = "everything"
+    """What the ``team`` form's 1 sends: ``everything`` or ``instance_novelty[:settings]`` (``policies.gate``)."""
 
     def __post_init__(self) -> None:
         check_action_form(self.action_form)
+        if payload_rule(self.payload) is not None and self.action_form != "team":
+            raise ValueError(f"payload {self.payload!r} gates the team form only, not {self.action_form!r}")
 
     @property
     def heads(self) -> int:

@@ -51,6 +51,9 @@ class TrainConfig:
     action_form: str = "entries"
     """``entries``: a Bernoulli per action entry; ``round``: one per agent, send everything or nothing; ``team``:
     one for the whole team from every agent's observation (``policies.gate``)."""
+    payload: str = "everything"
+    """What the ``team`` form's 1 sends: ``everything`` (every entry of every agent) or ``instance_novelty`` (what that
+    rule picks for each agent this round; settings after a colon): the policy learns when, the rule says what."""
     critic: str = "local"
     """``local``: the value function reads the actor's observation; ``central``: ``state()`` and the agent's
     ``comm`` (MAPPO; ``policies.critic``)."""
@@ -69,6 +72,7 @@ def same_run(old: dict, new: dict) -> bool:
         kept["train"].setdefault("critic", "local")  # runs begun before the central critic had the local one
         kept["train"].setdefault("read_links", False)  # and read no links
         kept["train"].setdefault("action_form", "entries")  # runs begun before the round form were entries
+        kept["train"].setdefault("payload", "everything")  # and before the payload sent everything
         kept["train"].setdefault("worlds_per_worker", 1)  # and before several worlds per worker, one each
         return kept
     return core(old) == core(new)
@@ -211,7 +215,7 @@ def train(env_factory: Callable[[int], object], config: TrainConfig, out: str | 
 
     from policies.files import save_policy  # noqa: PLC0415
     from policies.critic import StateFactory, central_critic_policy, check_critic  # noqa: PLC0415
-    from policies.gate import GatedFactory, TeamFactory, check_action_form  # noqa: PLC0415
+    from policies.gate import GatedFactory, TeamFactory, check_action_form, payload_rule  # noqa: PLC0415
     from policies.network import NetworkConfig  # noqa: PLC0415
     from policies.observation import MAP_CHANNELS  # noqa: PLC0415
     from policies.safe_checkpoint import (UnsafeCheckpointError, load_training_state,  # noqa: PLC0415
@@ -226,7 +230,9 @@ def train(env_factory: Callable[[int], object], config: TrainConfig, out: str | 
     # form on an env whose one agent is the team; a central critic adds state() to every observation)
     form, critic = check_action_form(config.action_form), check_critic(config.critic)
     factory = StateFactory(env_factory) if critic == "central" else env_factory
-    factory = {"round": GatedFactory, "team": TeamFactory}.get(form, lambda f: f)(factory)
+    if payload_rule(config.payload) is not None and form != "team":
+        raise ValueError(f"--payload {config.payload} gates the team form: add --action-form team")
+    factory = {"round": GatedFactory, "team": lambda f: TeamFactory(f, config.payload)}.get(form, lambda f: f)(factory)
     vec, entries_per_world = sb3_vec_env_from_factory(factory, config.workers, config.seed, config.worlds_per_worker)
     space = vec.observation_space
     comm_shape = space["comm"].shape
@@ -235,7 +241,8 @@ def train(env_factory: Callable[[int], object], config: TrainConfig, out: str | 
     links = space.spaces.get("links")
     link_inputs = int(np.prod(links.shape[-2:])) if links is not None and config.read_links else 0
     network_config = NetworkConfig(map_channels=len(MAP_CHANNELS), comm_size=int(comm_shape[-1]),
-                                   actions=entries, action_form=form, link_inputs=link_inputs).as_dict()
+                                   actions=entries, action_form=form, link_inputs=link_inputs,
+                                   payload=config.payload).as_dict()
 
     # ---- PPO, fresh or from the last checkpoint ----------------------------------------------------------
     # (tensors only: a checkpoint is read with weights_only=True, so resuming never runs code)
@@ -279,7 +286,8 @@ def train(env_factory: Callable[[int], object], config: TrainConfig, out: str | 
                   desc="training", unit="env step", disable=not progress) as bar:
             while model.num_timesteps // entries_per_world < config.total_env_steps:
                 before = model.num_timesteps
-                model.learn(total_timesteps=config.chunk_env_steps * entries_per_world, reset_num_timesteps=False,
+                left = config.total_env_steps - model.num_timesteps // entries_per_world  # the last chunk stops at the total
+                model.learn(total_timesteps=min(config.chunk_env_steps, left) * entries_per_world, reset_num_timesteps=False,
                             callback=Logging())
                 save_training_state(checkpoint, model.get_parameters(),
                                     {"num_timesteps": int(model.num_timesteps), "n_updates": int(model._n_updates)})

@@ -123,21 +123,85 @@ def test_the_team_gate_is_a_parallel_env_with_one_agent_that_sends_for_everyone(
         env.step({"team": np.array([1, 0])})
 
 
-@pytest.mark.parametrize("form", ["team", "entries"])
-def test_training_with_a_central_critic_ships_a_policy_and_tensorboard_logs(tmp_path, form):
+def test_the_team_gate_with_the_instance_novelty_payload_sends_what_the_rule_picks(tmp_path):
+    from openmulti_env import parallel_env
+    from policies.gate import TeamGate, payload_rule
+    from policies.instance_novelty import InstanceNoveltyPolicy
+
+    kwargs = dict(preset="rl_tiny", num_agents=3, cache_dir=str(tmp_path / "worlds"), action_form="instances")
+    gate, alone = TeamGate(parallel_env(**kwargs), "instance_novelty"), parallel_env(**kwargs)
+    gate.reset(seed=0)
+    observations, _ = alone.reset(seed=0)
+    rule = InstanceNoveltyPolicy()
+    for step, send in enumerate((0, 1, 1)):
+        _, _, _, _, infos = gate.step({"team": np.array([send])})
+        actions = rule(observations, None, step) if send else {a: np.zeros(alone.action_space(a).n, np.int8)
+                                                               for a in alone.agents}
+        observations, _, _, _, expected = alone.step(actions)
+        assert infos["team"]["bytes_sent_total"] == expected["agent_0"]["bytes_sent_total"]
+    assert infos["team"]["bytes_sent_total"] > 0  # the rule sent something in rounds 1-2, nothing in round 0
+    # ...and less than everything: it skips what every peer already holds unchanged
+    everything = TeamGate(parallel_env(**{**kwargs, "action_form": "entries"}))
+    everything.reset(seed=0)
+    for send in (0, 1, 1):
+        _, _, _, _, full = everything.step({"team": np.array([send])})
+    assert infos["team"]["bytes_sent_total"] < full["team"]["bytes_sent_total"]
+    with pytest.raises(ValueError, match="instances action form"):
+        TeamGate(parallel_env(**{**kwargs, "action_form": "entries"}), "instance_novelty")
+    with pytest.raises(ValueError, match="unknown payload"):
+        payload_rule("novelty")
+    with pytest.raises(ValueError, match="gates the team form only"):
+        NetworkConfig(len(MAP_CHANNELS), comm_size(3), 4, action_form="round", payload="instance_novelty")
+
+
+def test_a_learned_gate_over_instance_novelty_acts_in_the_instances_form(tmp_path):
+    import torch
+
+    from openmulti_env import parallel_env
+    from policies.files import save_policy
+    from policies.instance_novelty import InstanceNoveltyPolicy
+
+    env = parallel_env(preset="rl_tiny", num_agents=3, cache_dir=str(tmp_path / "worlds"), action_form="instances")
+    observations, _ = env.reset(seed=0)
+    observations, *_ = env.step(InstanceNoveltyPolicy()(observations, None, 0))
+    picked = InstanceNoveltyPolicy()(observations, None, 1)
+    assert any(a.any() for a in picked.values())
+    for bias, expected in ((10.0, picked), (-10.0, {a: np.zeros_like(v) for a, v in picked.items()})):
+        network = CommPolicyNetwork(NetworkConfig(len(MAP_CHANNELS), comm_size(3), 4, action_form="team",
+                                                  payload="instance_novelty"))
+        with torch.no_grad():
+            network.action.weight.zero_()
+            network.action.bias.fill_(bias)
+        path = save_policy(tmp_path / f"gate_{bias}", network, 3, {"command": "test"})
+        policy = make_policy(f"{path}:mode", 3)
+        assert policy.action_form == "instances"  # runners build the env in the rule's form
+        actions = policy(observations, None, 1)
+        for agent in picked:
+            np.testing.assert_array_equal(actions[agent], expected[agent])
+    env.close()
+
+
+@pytest.mark.parametrize("form,payload", [("team", "everything"), ("entries", "everything"),
+                                          ("team", "instance_novelty")])
+def test_training_with_a_central_critic_ships_a_policy_and_tensorboard_logs(tmp_path, form, payload):
     pytest.importorskip("stable_baselines3")
     pytest.importorskip("supersuit")
     pytest.importorskip("tensorboard")
     from openmulti_env.runs.train import WorkerEnvs
     from policies.train import TrainConfig, train
 
-    factory = WorkerEnvs(("tiny",), workers=1, env_kwargs={"preset": "rl_tiny", "num_agents": 3,
-                                                            "cache_dir": str(tmp_path / "worlds")})
+    env_kwargs = {"preset": "rl_tiny", "num_agents": 3, "cache_dir": str(tmp_path / "worlds")}
+    if payload != "everything":
+        env_kwargs["action_form"] = "instances"
+    factory = WorkerEnvs(("tiny",), workers=1, env_kwargs=env_kwargs)
     config = TrainConfig(total_env_steps=8, workers=1, n_steps=8, batch_size=8, n_epochs=1, chunk_env_steps=8,
-                         action_form=form, critic="central")
+                         action_form=form, critic="central", payload=payload)
     best = train(factory, config, tmp_path / "run", {"command": "test"}, progress=False)
     policy = make_policy(str(best), 3, seed=0)
     assert policy.record["architecture"]["action_form"] == form
+    assert policy.action_form == ("entries" if payload == "everything" else "instances")
+    if payload != "everything":
+        return
     board = tmp_path / "run" / "tensorboard"
     assert list((board / "episodes").glob("events.out.tfevents.*")) and list((board / "ppo").glob("events.out.tfevents.*"))
     obs = {f"agent_{i}": {"map": np.zeros((16, 16, len(MAP_CHANNELS)), np.uint8),

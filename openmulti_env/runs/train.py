@@ -189,13 +189,17 @@ def training_title(tree, config) -> str:
     reward = (f"cost {tree.env.comm_cost_per_mb}/MB" if tree.env.reward_baseline == "none"
               else f"reward over never/always, cost {tree.env.comm_cost_of_always} x always's bytes")
     form = "" if config.action_form == "entries" else f", {config.action_form} form"
+    if config.payload != "everything":
+        form += f" sending {config.payload}'s choice"
     critic = ", central critic" if config.critic == "central" else ""
     return f"{tree.preset}, {tree.num_agents} agents, {reward}{form}{critic}"
 
 
 def train_command(args) -> int:
     """``openmulti train``: build the env factory and the record, train, say where the policy is."""
+    from policies.gate import payload_rule  # noqa: PLC0415
     from policies.train import train  # noqa: PLC0415
+    from openmulti_env.environment.config import env_config  # noqa: PLC0415
     from openmulti_env.experiment import tree_record  # noqa: PLC0415
 
     backend = getattr(args, "backend", "sb3")
@@ -220,6 +224,12 @@ def train_command(args) -> int:
     scenes = tuple(args.scenes) if args.scenes else DEFAULT_TRAIN_SCENES
     check_training_scenes(scenes)
     env_kwargs, tree = env_settings(args)
+    if payload_rule(config.payload) is not None:  # the rule picks instances: the env acts in the instances form
+        if env_kwargs.get("env__action_form", "instances") != "instances":
+            raise ValueError(f"--payload {config.payload} acts on the instances action form, not "
+                             f"{env_kwargs['env__action_form']!r}")
+        env_kwargs["env__action_form"] = "instances"
+        tree = env_config(**env_kwargs)
     if tree.env.reward_baseline != "none" and not getattr(args, "episode_seeds", None):
         print("[openmulti] warning: --reward-baseline never_always without --episode-seeds K plays two more episodes "
               "(never, always) for every training episode, each on a fresh seed that is never reused; --episode-seeds 2 "
