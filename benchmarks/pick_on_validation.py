@@ -1,0 +1,115 @@
+"""Pick the policy to ship on validation worlds: the training reward's return, on worlds no run trained on and
+no test cell uses.
+
+A run's ``best.json`` is picked by the rolling training return, whose noise is as large as the differences between
+checkpoints (docs/learning.md); the unseen test cells (``learned_vs_fixed.py``) must not choose either. So each
+candidate plays each validation world (``random:SEED``, rooms like the training ones, episode seed 0) with the
+reward it was trained for (``reward_baseline=never_always``, ``comm_cost_of_always``; the never/always episodes
+are played once per world and cached), and the highest mean return is the choice. Rows go to ``--out/rows.jsonl``
+as each episode ends (a rerun skips them); the table and the choice to ``--out/validation.md`` and
+``--out/choice.json``.
+
+Run: `.venv/bin/python benchmarks/pick_on_validation.py --setting "rl_lite,link_range_m=2.5" --candidates
+runs/learn/gate_range_s0/best.json runs/learn/gate_range_s0/latest.json ... --out docs/schedules/validation_range`
+(about 12 s an episode here, plus two baseline episodes per world the first time). On a Ray cluster every
+(world, candidate) is an independent task.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # bench_schedules, run as a script
+from bench_schedules import parse_setting  # noqa: E402
+from openmulti_env import parallel_env  # noqa: E402
+from openmulti_env.environment.config import env_config  # noqa: E402
+from policies import make_policy  # noqa: E402
+
+WORLDS = ("random:200", "random:201", "random:202")
+"""Training walked ``random:100``-``107``; the test cells are room1 / office1 / office2."""
+
+
+def validation_episode(env, policy, seed: int) -> dict:
+    """One episode: the team's return (the training reward), final completion (percent) and MB sent."""
+    observations, infos = env.reset(seed=seed)
+    total, step = 0.0, 0
+    while env.agents:
+        actions = policy(observations if getattr(policy, "reads_observations", False) else None, infos, step)
+        observations, rewards, _, _, infos = env.step(actions)
+        total += float(np.mean(list(rewards.values())))
+        step += 1
+    if not np.isfinite(total):
+        raise RuntimeError(f"the return of {policy!r} is not finite ({total}): the reward is broken, not the policy")
+    return {"return": total, "completion": float(np.mean([i["completion_ratio"] for i in infos.values()])),
+            "mb": float(sum(i["bytes_sent_total"] for i in infos.values()) / 1e6)}
+
+
+def table(rows: list[dict], candidates: list[str]) -> tuple[str, str]:
+    """The Markdown table (mean return ± standard error, completion, MB per candidate) and the chosen candidate."""
+    lines = ["| candidate | worlds | return (mean ± SE) | completion % | MB |", "|---|---|---|---|---|"]
+    means = {}
+    for name in candidates:
+        mine = [r for r in rows if r["policy"] == name]
+        if not mine:
+            continue
+        returns = np.array([r["return"] for r in mine])
+        se = returns.std(ddof=1) / np.sqrt(len(returns)) if len(returns) > 1 else float("nan")
+        means[name] = float(returns.mean())
+        lines.append(f"| `{name}` | {len(mine)} | {returns.mean():.3f} ± {se:.3f} | "
+                     f"{np.mean([r['completion'] for r in mine]):.2f} | {np.mean([r['mb'] for r in mine]):.1f} |")
+    if not means:
+        raise RuntimeError("no candidate has a validation row")
+    return "\n".join(lines) + "\n", max(means, key=means.get)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--setting", default="rl_lite", help="preset[,field=value...] as in training")
+    parser.add_argument("--worlds", nargs="+", default=list(WORLDS))
+    parser.add_argument("--episode-seed", type=int, default=0)
+    parser.add_argument("--comm-cost-of-always", type=float, default=0.3)
+    parser.add_argument("--candidates", nargs="+", required=True, help="policy files (NAME:mode for a file's mode)")
+    parser.add_argument("--out", default="runs/validation")
+    args = parser.parse_args()
+    preset, overrides = parse_setting(args.setting)
+    overrides.update(reward_baseline="never_always", comm_cost_of_always=args.comm_cost_of_always)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    rows_path = out / "rows.jsonl"
+    rows = [json.loads(line) for line in rows_path.read_text().splitlines()] if rows_path.exists() else []
+    done = {(r["world"], r["policy"]) for r in rows if r["setting"] == args.setting}
+    n = env_config(preset, **overrides).num_agents
+    for world in args.worlds:
+        envs: dict[str, object] = {}
+        for name in args.candidates:
+            if (world, name) in done:
+                continue
+            policy = make_policy(name, n, args.episode_seed)
+            form = getattr(policy, "action_form", "entries")
+            if form not in envs:
+                envs[form] = parallel_env(preset=preset, scene=world, **{**overrides, "action_form": form})
+            row = {"setting": args.setting, "world": world, "policy": name,
+                   **validation_episode(envs[form], policy, args.episode_seed)}
+            rows.append(row)
+            with rows_path.open("a") as f:
+                f.write(json.dumps(row) + "\n")
+            print(f"{world} {name}: return {row['return']:.3f}, {row['completion']:.2f} %, {row['mb']:.1f} MB", flush=True)
+        for env in envs.values():
+            env.close()
+    mine = [r for r in rows if r["setting"] == args.setting]
+    text, chosen = table(mine, list(args.candidates))
+    header = (f"Setting `{args.setting}`, validation worlds {', '.join(args.worlds)} (episode seed {args.episode_seed}), "
+              f"the training reward (never/always baselines, {args.comm_cost_of_always} x always's bytes); one episode "
+              "per world and candidate.\n\n")
+    (out / "validation.md").write_text(header + text + f"\nChosen: `{chosen}` (the highest mean return).\n")
+    (out / "choice.json").write_text(json.dumps({"chosen": chosen, "setting": args.setting, "worlds": args.worlds}) + "\n")
+    print(header + text + f"\nChosen: {chosen}")
+
+
+if __name__ == "__main__":
+    main()
