@@ -139,7 +139,8 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--setting", default="rl_lite")
     parser.add_argument("--cells", nargs="+", default=list(CELLS), help="SCENE:WORLD_SEED")
-    parser.add_argument("--learned", nargs="*", default=[], help="policy files (or `learned`)")
+    parser.add_argument("--learned", nargs="*", default=[], help="policies placed against the fronts: files, "
+                        "`learned`, or any policy name (e.g. a fixed-timing reference, `instance_novelty:start=9`)")
     parser.add_argument("--out", default="runs/learned_vs_fixed")
     args = parser.parse_args()
     preset, overrides = parse_setting(args.setting)

@@ -6,7 +6,7 @@ copies of exactly these); nothing else. It asks regardless of the link's last st
 carries nothing and costs nothing, and one that comes up this round should not go unused). Rays as ``novelty``:
 ``held`` (to peers that hold any of my instances), ``with_params``, ``always`` or ``never``. With a byte budget,
 stay silent while the share of the budget spent runs ahead of the share of the path walked by ``slack``.
-Settings in the name: ``instance_novelty:change=0.03,shared=0.02,rays=held,slack=0.1,after=0,final=0.01``;
+Settings in the name: ``instance_novelty:change=0.03,shared=0.02,rays=held,slack=0.1,after=0,start=0,final=0.01``;
 ``instance_novelty:change=1,after=999,final=0`` sends each network once, at its final state in the path's last
 round, and nothing before (the cheapest schedule that ends with every peer holding every final network).
 
@@ -46,6 +46,9 @@ class InstanceNoveltySettings:
     last round it is the hindsight rule: each network reaches each peer once, at its final state, and only
     instances two agents map are exchanged before (it knows when the episode ends: a bound, not a schedule)."""
 
+    start: int = 0
+    """Send nothing before this round (0: from the start): the rule opened at a fixed round, the timing a learned
+    team gate over the rule (``--payload instance_novelty``) has to beat."""
     final: float = 0.01
     """In the path's last round (known from ``progress``: its own path's length) send every instance whose copy
     moved by more than this: each peer then ends with the final state (1: no final push)."""
@@ -62,11 +65,12 @@ class InstanceNoveltySettings:
             if not eq or key not in known:
                 raise ValueError(f"instance_novelty settings are name=value pairs of {known}, got {item!r}")
             try:
-                values[key] = value if key == "rays" else (int(value) if key == "after" else float(value))
+                values[key] = value if key == "rays" else (int(value) if key in ("after", "start") else float(value))
             except ValueError:
                 raise ValueError(f"instance_novelty setting {key} needs a number, got {value!r}") from None
-        if values.get("after", 0) < 0:
-            raise ValueError(f"after must be a round >= 0, got {values['after']}")
+        for key in ("after", "start"):
+            if values.get(key, 0) < 0:
+                raise ValueError(f"{key} must be a round >= 0, got {values[key]}")
         settings = InstanceNoveltySettings(**values)
         if settings.rays not in RAY_RULES:
             raise ValueError(f"rays must be one of {RAY_RULES}, got {settings.rays!r}")
@@ -117,7 +121,7 @@ class InstanceNoveltyPolicy:
         else:
             rays = np.full(peers, s.rays == "always")
         spent = 1.0 - float(agent_feature(observation, "budget_left"))
-        if spent > float(agent_feature(observation, "progress")) + s.slack:
+        if step < s.start or spent > float(agent_feature(observation, "progress")) + s.slack:
             send[:], new[:], rays[:] = False, False, False
         return np.concatenate([send.reshape(-1), new, rays]).astype(np.int8)
 

@@ -206,13 +206,15 @@ def test_instance_novelty_sends_what_the_peer_lacks_what_moved_and_what_it_maps_
     assert not last_round(_observation(5, [0], [0.0], [0], progress=0.0), step=0)
     final = InstanceNoveltyPolicy(InstanceNoveltySettings(change=0.1, final=0.01)).act(last, step=3)
     assert final[:2].tolist() == [1, 0]  # the final push sends what moved at all
+    late = InstanceNoveltyPolicy(InstanceNoveltySettings.parse("change=0.1,start=2"))
+    assert not late.act(obs, step=1).any() and late.act(obs, step=2).tolist() == action.tolist()  # silent before round 2
 
 
 def test_instance_novelty_names_and_bad_settings():
     assert parse_policy("instance_novelty:change=0.2,rays=never").settings["instance_novelty"].change == 0.2
     assert make_policy("instance_novelty", 4).action_form == "instances"
     for bad in ("instance_novelty:change=-1", "instance_novelty:speed=2", "instance_novelty:rays=sometimes",
-                "instance_novelty:change=x", "instance_novelty:after=-1"):
+                "instance_novelty:change=x", "instance_novelty:after=-1", "instance_novelty:start=-2"):
         with pytest.raises(PolicyError):
             parse_policy(bad)
     with pytest.raises(KeyError, match="action_form='instances'"):
