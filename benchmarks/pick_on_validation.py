@@ -82,18 +82,23 @@ def main() -> None:
     out.mkdir(parents=True, exist_ok=True)
     rows_path = out / "rows.jsonl"
     rows = [json.loads(line) for line in rows_path.read_text().splitlines()] if rows_path.exists() else []
-    done = {(r["world"], r["policy"]) for r in rows if r["setting"] == args.setting}
+    def key(row: dict) -> tuple:  # a row counts for this call only under the same reward and episode
+        return row["setting"], row["episode_seed"], row["comm_cost_of_always"], row["world"], row["policy"]
+
+    here = (args.setting, args.episode_seed, args.comm_cost_of_always)
+    done = {key(r) for r in rows}
     n = env_config(preset, **overrides).num_agents
     for world in args.worlds:
         envs: dict[str, object] = {}
         for name in args.candidates:
-            if (world, name) in done:
+            if here + (world, name) in done:
                 continue
             policy = make_policy(name, n, args.episode_seed)
             form = getattr(policy, "action_form", "entries")
             if form not in envs:
                 envs[form] = parallel_env(preset=preset, scene=world, **{**overrides, "action_form": form})
-            row = {"setting": args.setting, "world": world, "policy": name,
+            row = {"setting": args.setting, "episode_seed": args.episode_seed,
+                   "comm_cost_of_always": args.comm_cost_of_always, "world": world, "policy": name,
                    **validation_episode(envs[form], policy, args.episode_seed)}
             rows.append(row)
             with rows_path.open("a") as f:
@@ -101,7 +106,7 @@ def main() -> None:
             print(f"{world} {name}: return {row['return']:.3f}, {row['completion']:.2f} %, {row['mb']:.1f} MB", flush=True)
         for env in envs.values():
             env.close()
-    mine = [r for r in rows if r["setting"] == args.setting]
+    mine = [r for r in rows if key(r)[:3] == here and r["world"] in args.worlds]
     text, chosen = table(mine, list(args.candidates))
     header = (f"Setting `{args.setting}`, validation worlds {', '.join(args.worlds)} (episode seed {args.episode_seed}), "
               f"the training reward (never/always baselines, {args.comm_cost_of_always} x always's bytes); one episode "

@@ -222,16 +222,17 @@ def train(env_factory: Callable[[int], object], config: TrainConfig, out: str | 
                                           refuse_pickled_checkpoint, save_training_state)
     from policies.sb3_vec import sb3_vec_env_from_factory  # noqa: PLC0415
 
+    form, critic = check_action_form(config.action_form), check_critic(config.critic)  # before the folder is claimed
+    if payload_rule(config.payload) is not None and form != "team":
+        raise ValueError(f"--payload {config.payload} gates the team form: add --action-form team")
     out = Path(out)
     settings = claim_run_folder(out, {"train": asdict(config), **training_record})
 
     # ---- the vector env: every agent of every worker's env one entry, one shared policy -------------------
     # (the round form learns on a gated env: one action entry per agent, broadcast to the env's entries; the team
-    # form on an env whose one agent is the team; a central critic adds state() to every observation)
-    form, critic = check_action_form(config.action_form), check_critic(config.critic)
+    # form on an env whose one agent is the team, sending everything or the payload rule's choice; a central
+    # critic adds state() to every observation)
     factory = StateFactory(env_factory) if critic == "central" else env_factory
-    if payload_rule(config.payload) is not None and form != "team":
-        raise ValueError(f"--payload {config.payload} gates the team form: add --action-form team")
     factory = {"round": GatedFactory, "team": lambda f: TeamFactory(f, config.payload)}.get(form, lambda f: f)(factory)
     vec, entries_per_world = sb3_vec_env_from_factory(factory, config.workers, config.seed, config.worlds_per_worker)
     space = vec.observation_space
@@ -286,7 +287,8 @@ def train(env_factory: Callable[[int], object], config: TrainConfig, out: str | 
                   desc="training", unit="env step", disable=not progress) as bar:
             while model.num_timesteps // entries_per_world < config.total_env_steps:
                 before = model.num_timesteps
-                left = config.total_env_steps - model.num_timesteps // entries_per_world  # the last chunk stops at the total
+                # the last chunk is what is left (SB3 still collects whole rollouts)
+                left = config.total_env_steps - model.num_timesteps // entries_per_world
                 model.learn(total_timesteps=min(config.chunk_env_steps, left) * entries_per_world, reset_num_timesteps=False,
                             callback=Logging())
                 save_training_state(checkpoint, model.get_parameters(),

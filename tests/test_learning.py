@@ -126,26 +126,38 @@ def test_the_team_gate_is_a_parallel_env_with_one_agent_that_sends_for_everyone(
 def test_the_team_gate_with_the_instance_novelty_payload_sends_what_the_rule_picks(tmp_path):
     from openmulti_env import parallel_env
     from policies.gate import TeamGate, payload_rule
-    from policies.instance_novelty import InstanceNoveltyPolicy
+    from policies.instance_novelty import InstanceNoveltyPolicy, InstanceNoveltySettings
 
     kwargs = dict(preset="rl_tiny", num_agents=3, cache_dir=str(tmp_path / "worlds"), action_form="instances")
-    gate, alone = TeamGate(parallel_env(**kwargs), "instance_novelty"), parallel_env(**kwargs)
+    gate, alone = TeamGate(parallel_env(**kwargs), "instance_novelty:start=2"), parallel_env(**kwargs)
+    seen = {}
+    inner = gate.env.step
+
+    def spy(actions):  # every agent's infos, not only the team's one
+        out = inner(actions)
+        seen["infos"] = out[4]
+        return out
+
+    gate.env.step = spy
     gate.reset(seed=0)
     observations, _ = alone.reset(seed=0)
-    rule = InstanceNoveltyPolicy()
-    for step, send in enumerate((0, 1, 1)):
-        _, _, _, _, infos = gate.step({"team": np.array([send])})
+    rule = InstanceNoveltyPolicy(InstanceNoveltySettings(start=2))
+    for step, send in enumerate((1, 0, 1, 1)):
+        gate.step({"team": np.array([send])})
         actions = rule(observations, None, step) if send else {a: np.zeros(alone.action_space(a).n, np.int8)
                                                                for a in alone.agents}
         observations, _, _, _, expected = alone.step(actions)
-        assert infos["team"]["bytes_sent_total"] == expected["agent_0"]["bytes_sent_total"]
-    assert infos["team"]["bytes_sent_total"] > 0  # the rule sent something in rounds 1-2, nothing in round 0
+        got = {a: i["bytes_sent_total"] for a, i in seen["infos"].items()}
+        assert got == {a: i["bytes_sent_total"] for a, i in expected.items()}
+        if step < 2:  # the gate open in round 0 but the rule silent before round 2 (the gate counts rounds as runners do)
+            assert sum(got.values()) == 0
+    assert sum(got.values()) > 0
     # ...and less than everything: it skips what every peer already holds unchanged
     everything = TeamGate(parallel_env(**{**kwargs, "action_form": "entries"}))
     everything.reset(seed=0)
-    for send in (0, 1, 1):
+    for send in (0, 0, 1, 1):
         _, _, _, _, full = everything.step({"team": np.array([send])})
-    assert infos["team"]["bytes_sent_total"] < full["team"]["bytes_sent_total"]
+    assert seen["infos"]["agent_0"]["bytes_sent_total"] < full["team"]["bytes_sent_total"]
     with pytest.raises(ValueError, match="instances action form"):
         TeamGate(parallel_env(**{**kwargs, "action_form": "entries"}), "instance_novelty")
     with pytest.raises(ValueError, match="unknown payload"):
@@ -159,25 +171,28 @@ def test_a_learned_gate_over_instance_novelty_acts_in_the_instances_form(tmp_pat
 
     from openmulti_env import parallel_env
     from policies.files import save_policy
-    from policies.instance_novelty import InstanceNoveltyPolicy
+    from policies.instance_novelty import InstanceNoveltyPolicy, InstanceNoveltySettings
 
     env = parallel_env(preset="rl_tiny", num_agents=3, cache_dir=str(tmp_path / "worlds"), action_form="instances")
     observations, _ = env.reset(seed=0)
     observations, *_ = env.step(InstanceNoveltyPolicy()(observations, None, 0))
-    picked = InstanceNoveltyPolicy()(observations, None, 1)
+    rule = InstanceNoveltyPolicy(InstanceNoveltySettings(start=2))
+    picked = rule(observations, None, 2)
+    silent = {a: np.zeros_like(v) for a, v in picked.items()}
     assert any(a.any() for a in picked.values())
-    for bias, expected in ((10.0, picked), (-10.0, {a: np.zeros_like(v) for a, v in picked.items()})):
+    for bias, open_gate in ((10.0, True), (-10.0, False)):
         network = CommPolicyNetwork(NetworkConfig(len(MAP_CHANNELS), comm_size(3), 4, action_form="team",
-                                                  payload="instance_novelty"))
+                                                  payload="instance_novelty:start=2"))
         with torch.no_grad():
             network.action.weight.zero_()
             network.action.bias.fill_(bias)
         path = save_policy(tmp_path / f"gate_{bias}", network, 3, {"command": "test"})
         policy = make_policy(f"{path}:mode", 3)
         assert policy.action_form == "instances"  # runners build the env in the rule's form
-        actions = policy(observations, None, 1)
-        for agent in picked:
-            np.testing.assert_array_equal(actions[agent], expected[agent])
+        for step, expected in ((1, silent), (2, picked if open_gate else silent)):  # the runner's step reaches the rule
+            actions = policy(observations, None, step)
+            for agent in picked:
+                np.testing.assert_array_equal(actions[agent], expected[agent])
     env.close()
 
 
@@ -200,7 +215,19 @@ def test_training_with_a_central_critic_ships_a_policy_and_tensorboard_logs(tmp_
     policy = make_policy(str(best), 3, seed=0)
     assert policy.record["architecture"]["action_form"] == form
     assert policy.action_form == ("entries" if payload == "everything" else "instances")
-    if payload != "everything":
+    assert policy.record["architecture"]["payload"] == payload
+    if payload != "everything":  # it acts in the instances form (the training run's env)
+        from openmulti_env import parallel_env
+
+        env = parallel_env(**env_kwargs)
+        observations, _ = env.reset(seed=0)
+        actions = policy(observations, None, 0)
+        assert all(actions[a].shape == env.action_space(a).shape for a in env.agents)
+        env.close()
+        with pytest.raises(ValueError, match="gates the team form"):  # refused before a run folder is claimed
+            train(factory, TrainConfig(**{**config.__dict__, "action_form": "round"}), tmp_path / "other", {},
+                  progress=False)
+        assert not (tmp_path / "other").exists()
         return
     board = tmp_path / "run" / "tensorboard"
     assert list((board / "episodes").glob("events.out.tfevents.*")) and list((board / "ppo").glob("events.out.tfevents.*"))
@@ -270,6 +297,10 @@ def test_a_world_cycle_replays_its_worlds_from_a_fixed_set_of_episode_seeds(monk
     (["--backend", "rllib", "--critic", "central"], "sb3 backend only"),
     (["--backend", "rllib", "--read-links", "true"], "sb3 backend only"),
     (["--critic", "both"], "unknown critic"),
+    (["--payload", "instance_novelty"], "gates the team form"),
+    (["--action-form", "team", "--payload", "instance_novelty", "--env.action-form", "entries"],
+     "acts on the instances action form"),
+    (["--action-form", "team", "--payload", "novelty"], "unknown payload"),
 ])
 def test_training_options_that_cannot_work_are_refused_by_name(tmp_path, capsys, options, message):
     pytest.importorskip("stable_baselines3")

@@ -225,6 +225,8 @@ def train_command(args) -> int:
     check_training_scenes(scenes)
     env_kwargs, tree = env_settings(args)
     if payload_rule(config.payload) is not None:  # the rule picks instances: the env acts in the instances form
+        if config.action_form != "team" or backend != "sb3":
+            raise ValueError(f"--payload {config.payload} gates the team form: add --action-form team (sb3 backend)")
         if env_kwargs.get("env__action_form", "instances") != "instances":
             raise ValueError(f"--payload {config.payload} acts on the instances action form, not "
                              f"{env_kwargs['env__action_form']!r}")
