@@ -57,6 +57,21 @@ def parse_setting(text: str) -> tuple[str, dict]:
     return preset, overrides
 
 
+def env_for(envs: dict, policy, preset: str, **env_kwargs):
+    """The env in ``policy``'s action form (``instance_novelty`` and gates over it act in ``instances``), made once
+    per form and kept in ``envs``."""
+    form = getattr(policy, "action_form", "entries")
+    if form not in envs:
+        envs[form] = parallel_env(preset=preset, **{**env_kwargs, "action_form": form})
+    return envs[form]
+
+
+def append_row(path: Path, row: dict) -> None:
+    """One finished episode's row, appended at once (a rerun skips the rows already there)."""
+    with path.open("a") as f:
+        f.write(json.dumps(row) + "\n")
+
+
 def episode(env, policy, seed: int) -> dict:
     """One episode: final completion (team mean, percent), MB sent, steps, seconds per step."""
     obs, infos = env.reset(seed=seed)
@@ -93,13 +108,10 @@ def main() -> None:
                 if (setting, name, seed) in done:
                     continue
                 policy = HalfPolicy(name, n) if name in ("params_only", "rays_only") else make_policy(name, n, seed)
-                form = getattr(policy, "action_form", "entries")
-                if form not in envs:
-                    envs[form] = parallel_env(preset=preset, **{**overrides, "action_form": form})
-                row = {"setting": setting, "policy": name, "seed": seed, **episode(envs[form], policy, seed)}
+                row = {"setting": setting, "policy": name, "seed": seed,
+                       **episode(env_for(envs, policy, preset, **overrides), policy, seed)}
                 rows.append(row)
-                with rows_file.open("a") as f:
-                    f.write(json.dumps(row) + "\n")
+                append_row(rows_file, row)
                 print(f"{setting:40s} {name:14s} seed {seed}: {row['completion']:.1f} % {row['mb']:.1f} MB "
                       f"{row['s_per_step']:.2f} s/step", flush=True)
         for env in envs.values():

@@ -29,8 +29,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # bench_schedules, run as a script
-from bench_schedules import episode, parse_setting  # noqa: E402
-from openmulti_env import parallel_env  # noqa: E402
+from bench_schedules import append_row, env_for, episode, parse_setting  # noqa: E402
 from openmulti_env.environment.config import env_config  # noqa: E402
 from policies import make_policy  # noqa: E402
 
@@ -158,14 +157,10 @@ def main() -> None:
             if (args.setting, cell, name) in done:
                 continue
             policy = make_policy(name, n, int(world_seed))
-            form = getattr(policy, "action_form", "entries")
-            if form not in envs:
-                envs[form] = parallel_env(preset=preset, scene=scene, seed=int(world_seed),
-                                          **{**overrides, "action_form": form})
-            row = {"setting": args.setting, "cell": cell, "policy": name, **episode(envs[form], policy, int(world_seed))}
+            env = env_for(envs, policy, preset, scene=scene, seed=int(world_seed), **overrides)
+            row = {"setting": args.setting, "cell": cell, "policy": name, **episode(env, policy, int(world_seed))}
             rows.append(row)
-            with rows_path.open("a") as f:
-                f.write(json.dumps(row) + "\n")
+            append_row(rows_path, row)
             print(f"{cell} {name}: {row['completion']:.2f} % {row['mb']:.1f} MB", flush=True)
         for env in envs.values():
             env.close()

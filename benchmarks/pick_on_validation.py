@@ -25,8 +25,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # bench_schedules, run as a script
-from bench_schedules import parse_setting  # noqa: E402
-from openmulti_env import parallel_env  # noqa: E402
+from bench_schedules import append_row, env_for, parse_setting  # noqa: E402
 from openmulti_env.environment.config import env_config  # noqa: E402
 from policies import make_policy  # noqa: E402
 
@@ -94,15 +93,12 @@ def main() -> None:
             if here + (world, name) in done:
                 continue
             policy = make_policy(name, n, args.episode_seed)
-            form = getattr(policy, "action_form", "entries")
-            if form not in envs:
-                envs[form] = parallel_env(preset=preset, scene=world, **{**overrides, "action_form": form})
+            env = env_for(envs, policy, preset, scene=world, **overrides)
             row = {"setting": args.setting, "episode_seed": args.episode_seed,
                    "comm_cost_of_always": args.comm_cost_of_always, "world": world, "policy": name,
-                   **validation_episode(envs[form], policy, args.episode_seed)}
+                   **validation_episode(env, policy, args.episode_seed)}
             rows.append(row)
-            with rows_path.open("a") as f:
-                f.write(json.dumps(row) + "\n")
+            append_row(rows_path, row)
             print(f"{world} {name}: return {row['return']:.3f}, {row['completion']:.2f} %, {row['mb']:.1f} MB", flush=True)
         for env in envs.values():
             env.close()
