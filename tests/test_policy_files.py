@@ -141,18 +141,23 @@ def test_training_writes_a_policy_a_log_and_a_curve_and_resumes(tmp_path):
         train(factory, TrainConfig(**{**config.__dict__, "learning_rate": 1.0}), tmp_path / "run", {}, progress=False)
 
 
-def test_the_shipped_policy_loads_acts_for_four_agents_and_refuses_other_teams():
+def test_the_shipped_policy_loads_acts_for_four_agents_and_refuses_other_teams(tmp_path):
     pytest.importorskip("torch")
+    from openmulti_env import parallel_env
     from policies.learned import SHIPPED
 
     assert SHIPPED.is_file() and SHIPPED.with_suffix(".safetensors").is_file()
     policy = make_policy("learned", 4, seed=0)
     assert policy.record["num_agents"] == 4 and "openmulti train" in policy.record["training"]["command"]
-    rng = np.random.default_rng(0)
-    obs = {f"agent_{i}": {"map": rng.integers(0, 256, (48, 48, len(MAP_CHANNELS)), dtype=np.uint8),
-                          "comm": rng.random(comm_size(4)).astype(np.float32)} for i in range(4)}
-    actions = policy(obs, None, 0)
-    assert set(actions) == set(obs) and all(a.shape == (6,) and set(a.tolist()) <= {0, 1} for a in actions.values())
+    env = parallel_env(preset="rl_tiny", num_agents=4, cache_dir=str(tmp_path / "worlds"),
+                       action_form=policy.action_form)  # the form it acts in (a gate over a rule: instances)
+    observations, infos = env.reset(seed=0)
+    for step in range(3):
+        actions = policy(observations, infos, step)
+        assert set(actions) == set(observations)
+        assert all(a.shape == env.action_space(name).shape and set(a.tolist()) <= {0, 1} for name, a in actions.items())
+        observations, _, _, _, infos = env.step(actions)
+    env.close()
     with pytest.raises(PolicyError, match="for 4 agents; the team has 3"):
         make_policy("learned", 3)
 
