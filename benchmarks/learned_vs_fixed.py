@@ -97,6 +97,14 @@ def report(rows: list[dict], learned: list[str]) -> str:
     return "\n".join(lines) + "\n"
 
 
+def short_name(name: str) -> str:
+    """A policy file's name without the folders every run shares (``docs/schedules/learning/``, ``runs/learn/``)."""
+    for prefix in ("docs/schedules/learning/", "runs/learn/"):
+        if name.startswith(prefix):
+            return name[len(prefix):]
+    return name
+
+
 def plot(rows: list[dict], learned: list[str], png: Path) -> None:
     import matplotlib  # noqa: PLC0415
 
@@ -118,7 +126,7 @@ def plot(rows: list[dict], learned: list[str], png: Path) -> None:
         for k, name in enumerate(learned):
             if name in mine:
                 ax.plot(mine[name]["mb"], mine[name]["completion"], "*", ms=11, color=plt.cm.tab20(k % 20),
-                        label=f"{Path(name).parent.name}/{Path(name).name}" if Path(name).parent.name else name)
+                        label=short_name(name))
         if "at:11" in mine:
             ax.plot(mine["at:11"]["mb"], mine["at:11"]["completion"], "x", color="black", label="at:11")
         never = mine.get("never", {}).get("completion")
@@ -140,6 +148,8 @@ def main() -> None:
     parser.add_argument("--cells", nargs="+", default=list(CELLS), help="SCENE:WORLD_SEED")
     parser.add_argument("--learned", nargs="*", default=[], help="policies placed against the fronts: files, "
                         "`learned`, or any policy name (e.g. a fixed-timing reference, `instance_novelty:start=9`)")
+    parser.add_argument("--show", nargs="*", default=None, help="the policies the picture marks (default: every "
+                        "--learned one; the table lists them all)")
     parser.add_argument("--out", default="runs/learned_vs_fixed")
     args = parser.parse_args()
     preset, overrides = parse_setting(args.setting)
@@ -169,7 +179,7 @@ def main() -> None:
             "estimate, one episode per cell and policy; margins are paired per cell, mean ± standard error.\n\n"
             + report(mine, list(args.learned)))
     (out / "learned_vs_fixed.md").write_text(text)
-    plot(mine, list(args.learned), out / "fronts.png")
+    plot(mine, list(args.learned if args.show is None else args.show), out / "fronts.png")
     print(text)
 
 
