@@ -20,6 +20,12 @@ import numpy as np
 KEYS = (("return", "episode return (normalised)"), ("completion", "final completion %"), ("mb", "MB sent by the team"))
 
 
+def run_name(run) -> str:
+    """A run folder's name, with its parent's when the folder is a copy at some length (``gate_s0/steps_3072``)."""
+    path = Path(run)
+    return f"{path.parent.name}/{path.name}" if path.name.startswith("steps_") else path.name
+
+
 def read_log(folder: Path) -> dict[str, np.ndarray]:
     path = Path(folder) / "log.csv"
     if not path.is_file():
@@ -68,7 +74,7 @@ def main() -> None:
             first, final = valid[0], valid[-1]
             cells.append((len(log["return"]), ret[first], ret[final], binned(log, "completion", edges)[final],
                           binned(log, "mb", edges)[final]))
-            lines.append(f"| {label} | {Path(run).name} | {cells[-1][0]} | {cells[-1][1]:.3f} | {cells[-1][2]:.3f} | "
+            lines.append(f"| {label} | {run_name(run)} | {cells[-1][0]} | {cells[-1][1]:.3f} | {cells[-1][2]:.3f} | "
                          f"{cells[-1][3]:.1f} | {cells[-1][4]:.1f} |")
         if len(cells) > 1:
             mean = np.mean(np.array(cells), axis=0)
