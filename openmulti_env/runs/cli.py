@@ -321,6 +321,8 @@ logs under OUT/tensorboard,
   openmulti train --preset rl_lite --action-form team --critic central --reward-baseline never_always
     --episode-seeds 2 --scenes random:100 random:101 random:102 random:103 random:104 random:105 random:106
     random:107 --env-steps 1536 --seed 0 --out runs/learn/team_s0
+and with links that come and go, the team's decision gates what instance_novelty picks (the shipped `learned`),
+  ... --link-range-m 2.5 --action-form team --payload instance_novelty --read-links true --critic central
 On a cluster: RLlib's PPO with one env runner per core (the same settings, run folder and policy files),
   openmulti train --backend rllib --ray auto --workers 32 --env-steps 200000 --out runs/train_cluster
 (started on the cluster's head node, or `ray job submit --working-dir . -- openmulti train ...`;
