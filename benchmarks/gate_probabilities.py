@@ -18,26 +18,12 @@ import sys
 from pathlib import Path
 
 import numpy as np
-import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # bench_schedules, run as a script
 from bench_schedules import env_for, parse_setting  # noqa: E402
 from mapping.pipeline.records import write_json_atomic  # noqa: E402
 from openmulti_env.environment.config import env_config  # noqa: E402
 from policies import make_policy  # noqa: E402
-from policies.network import team_pool  # noqa: E402
-
-
-def send_probability(network, observations: dict) -> float:
-    """The team network's probability of sending this round (sigmoid of its one logit over the pooled agents)."""
-    agents = list(observations)
-    maps = np.stack([np.asarray(observations[a]["map"]) for a in agents])
-    comms = np.stack([np.asarray(observations[a]["comm"], np.float32) for a in agents])
-    links = (np.stack([np.asarray(observations[a]["links"], np.float32) for a in agents])
-             if network.config.link_inputs else None)
-    with torch.no_grad():
-        logit = network.action(team_pool(network.features.observe(maps, comms, links)[None]))
-    return float(torch.sigmoid(logit[0, 0]))
 
 
 def main() -> None:
@@ -63,7 +49,7 @@ def main() -> None:
             observations, infos = env.reset(seed=int(world_seed))
             probabilities, step = [], 0
             while env.agents:
-                probabilities.append(send_probability(policy.network, observations))
+                probabilities.append(policy.network.team_send_probability(*policy.inputs(observations)))
                 observations, _, _, _, infos = env.step(policy(observations, infos, step))
                 step += 1
             env.close()

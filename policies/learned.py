@@ -47,6 +47,17 @@ class LearnedPolicy:
 
     def __call__(self, observations: Mapping[str, Mapping[str, np.ndarray]], infos=None,
                  step: int = 0) -> dict[str, np.ndarray]:
+        agents = list(observations or {})
+        maps, comms, links = self.inputs(observations)
+        actions = self.network.act(maps, comms, self.rng, links)
+        if self.rule is not None:  # the team's decision gates what the rule picks for each agent
+            picked = self.rule(observations, None, step)
+            return {a: picked[a] * np.int8(actions[0, 0]) for a in agents}
+        return {a: actions[k] for k, a in enumerate(agents)}
+
+    def inputs(self, observations: Mapping[str, Mapping[str, np.ndarray]]):
+        """The network's inputs stacked over the agents: maps (N, H, W, C), comm (N, K), links (N, N - 1, L) or None;
+        PolicyError when they do not fit the network."""
         if observations is None:
             raise ValueError("a learned policy reads observations: call it with the env's observations")
         agents = list(observations)
@@ -63,8 +74,4 @@ class LearnedPolicy:
             links = np.stack([np.asarray(observations[a]["links"], np.float32) for a in agents])
             if links[0].size != config.link_inputs:
                 raise PolicyError(f"{self.source} reads {config.link_inputs} link values; the env gives {links[0].size}")
-        actions = self.network.act(maps, comms, self.rng, links)
-        if self.rule is not None:  # the team's decision gates what the rule picks for each agent
-            picked = self.rule(observations, None, step)
-            return {a: picked[a] * np.int8(actions[0, 0]) for a in agents}
-        return {a: actions[k] for k, a in enumerate(agents)}
+        return maps, comms, links

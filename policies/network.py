@@ -122,8 +122,8 @@ class CommPolicyNetwork(nn.Module):
             logits = logits.expand(len(features), -1)
             if rng is not None:  # one draw for the team, every agent acts on it
                 draw = rng.random()
-                probability = float(torch.sigmoid(logits[0, 0]))
-                return np.full((len(features), self.config.actions), int(draw < probability), np.int8)
+                return np.full((len(features), self.config.actions), int(draw < float(torch.sigmoid(logits[0, 0]))),
+                               np.int8)
         else:
             logits = self.action(features)
         logits = logits.double().cpu().numpy()
@@ -132,6 +132,14 @@ class CommPolicyNetwork(nn.Module):
         else:
             drawn = (rng.random(logits.shape) < 0.5 * (1.0 + np.tanh(0.5 * logits))).astype(np.int8)  # sigmoid
         return np.repeat(drawn, self.config.actions, axis=1) if self.config.heads == 1 else drawn
+
+
+    @torch.no_grad()
+    def team_send_probability(self, map_hwc: np.ndarray, comm: np.ndarray, links: np.ndarray | None = None) -> float:
+        """The ``team`` form's probability that the team sends this round (the batch is the team's agents)."""
+        if self.config.action_form != "team":
+            raise ValueError(f"a {self.config.action_form}-form network draws per agent or entry, not once for the team")
+        return float(torch.sigmoid(self.action(team_pool(self.features.observe(map_hwc, comm, links)[None]))[0, 0]))
 
 
 def team_pool(features: torch.Tensor) -> torch.Tensor:
