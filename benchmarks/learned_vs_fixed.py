@@ -31,34 +31,16 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # bench_schedules, run as a script
 from bench_schedules import append_row, env_for, episode, parse_setting  # noqa: E402
 from openmulti_env.environment.config import env_config  # noqa: E402
+from openmulti_env.environment.reward_front import FRONT_SCHEDULES, front, front_points  # noqa: E402
 from policies import make_policy  # noqa: E402
 
 CELLS = ("room1:3", "room1:4", "room1:5", "office1:3", "office1:4", "office1:5", "office2:3", "office2:4", "office2:5")
-FIXED = ("never", "every:2", "every:3", "every:4", "every:6", "every:8", "rate:0.1", "rate:0.25", "rate:0.5", "always")
-"""The fixed-rate front's schedules: down to 10-17 % of ``always``'s bytes, so that a cheap policy is compared with
-a schedule of about its bytes, not with a line from ``never``."""
+FIXED = ("never",) + FRONT_SCHEDULES + ("always",)
+"""The fixed-rate front's schedules (the front reward's, ``reward_front.FRONT_SCHEDULES``)."""
 INSTANCE = ("instance_novelty", "instance_novelty:change=0.1", "instance_novelty:change=1,final=0.01",
             "instance_novelty:change=1,after=999,final=0")
 REFERENCE = ("at:11",)
 """Not on either front: the whole map once in the last round (rl_lite's 12 rounds), for reading the table."""
-
-
-def front_points(points: list[tuple[float, float]]) -> list[tuple[float, float]]:
-    """The Pareto front of (MB, completion) points: each kept point completes more than every cheaper one."""
-    keep: list[tuple[float, float]] = []
-    for mb, c in sorted(points, key=lambda p: (p[0], -p[1])):  # under an earlier, cheaper (or equally cheap) one: dominated
-        if keep and (c <= keep[-1][1] or mb == keep[-1][0]):
-            continue
-        keep.append((mb, c))
-    return keep
-
-
-def front(points: list[tuple[float, float]]):
-    """``front_points`` as a function of MB: straight lines between kept points, flat past the last (not their
-    concave hull: a schedule that mixed two others round by round is not on it)."""
-    keep = front_points(points)
-    xs, ys = np.array([p[0] for p in keep]), np.array([p[1] for p in keep])
-    return lambda mb: float(np.interp(mb, xs, ys))
 
 
 def margins(rows: list[dict], policy: str, family: tuple[str, ...]) -> np.ndarray:

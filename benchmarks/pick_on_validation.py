@@ -4,8 +4,8 @@ no test cell uses.
 A run's ``best.json`` is picked by the rolling training return, whose noise is as large as the differences between
 checkpoints (docs/learning.md); the unseen test cells (``learned_vs_fixed.py``) must not choose either. So each
 candidate plays each validation world (``random:SEED``, rooms like the training ones, episode seed 0) with the
-reward it was trained for (``reward_baseline=never_always``, ``comm_cost_of_always``; the never/always episodes
-are played once per world and cached), and the highest mean return is the choice. Rows go to ``--out/rows.jsonl``
+reward it was trained for (``--reward-baseline never_always`` with ``comm_cost_of_always``, or ``front``; the
+baseline episodes are played once per world and cached), and the highest mean return is the choice. Rows go to ``--out/rows.jsonl``
 as each episode ends (a rerun skips them); the table and the choice to ``--out/validation.md`` and
 ``--out/choice.json``.
 
@@ -72,19 +72,22 @@ def main() -> None:
     parser.add_argument("--worlds", nargs="+", default=list(WORLDS))
     parser.add_argument("--episode-seed", type=int, default=0)
     parser.add_argument("--comm-cost-of-always", type=float, default=0.3)
+    parser.add_argument("--reward-baseline", choices=("never_always", "front"), default="never_always",
+                        help="the training reward the candidates are compared under")
     parser.add_argument("--candidates", nargs="+", required=True, help="policy files (NAME:mode for a file's mode)")
     parser.add_argument("--out", default="runs/validation")
     args = parser.parse_args()
     preset, overrides = parse_setting(args.setting)
-    overrides.update(reward_baseline="never_always", comm_cost_of_always=args.comm_cost_of_always)
+    overrides.update(reward_baseline=args.reward_baseline, comm_cost_of_always=args.comm_cost_of_always)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     rows_path = out / "rows.jsonl"
     rows = [json.loads(line) for line in rows_path.read_text().splitlines()] if rows_path.exists() else []
     def key(row: dict) -> tuple:  # a row counts for this call only under the same reward and episode
-        return row["setting"], row["episode_seed"], row["comm_cost_of_always"], row["world"], row["policy"]
+        return (row["setting"], row["episode_seed"], row.get("reward_baseline", "never_always"),
+                row["comm_cost_of_always"], row["world"], row["policy"])
 
-    here = (args.setting, args.episode_seed, args.comm_cost_of_always)
+    here = (args.setting, args.episode_seed, args.reward_baseline, args.comm_cost_of_always)
     done = {key(r) for r in rows}
     n = env_config(preset, **overrides).num_agents
     for world in args.worlds:
@@ -94,7 +97,7 @@ def main() -> None:
                 continue
             policy = make_policy(name, n, args.episode_seed)
             env = env_for(envs, policy, preset, scene=world, **overrides)
-            row = {"setting": args.setting, "episode_seed": args.episode_seed,
+            row = {"setting": args.setting, "episode_seed": args.episode_seed, "reward_baseline": args.reward_baseline,
                    "comm_cost_of_always": args.comm_cost_of_always, "world": world, "policy": name,
                    **validation_episode(env, policy, args.episode_seed)}
             rows.append(row)
@@ -102,11 +105,12 @@ def main() -> None:
             print(f"{world} {name}: return {row['return']:.3f}, {row['completion']:.2f} %, {row['mb']:.1f} MB", flush=True)
         for env in envs.values():
             env.close()
-    mine = [r for r in rows if key(r)[:3] == here and r["world"] in args.worlds]
+    mine = [r for r in rows if key(r)[:4] == here and r["world"] in args.worlds]
     text, chosen = table(mine, list(args.candidates))
+    reward = ("the margin over the fixed-rate front" if args.reward_baseline == "front"
+              else f"never/always baselines, {args.comm_cost_of_always} x always's bytes")
     header = (f"Setting `{args.setting}`, validation worlds {', '.join(args.worlds)} (episode seed {args.episode_seed}), "
-              f"the training reward (never/always baselines, {args.comm_cost_of_always} x always's bytes); one episode "
-              "per world and candidate.\n\n")
+              f"the training reward ({reward}); one episode per world and candidate.\n\n")
     (out / "validation.md").write_text(header + text + f"\nChosen: `{chosen}` (the highest mean return).\n")
     (out / "choice.json").write_text(json.dumps({"chosen": chosen, "setting": args.setting, "worlds": args.worlds}) + "\n")
     print(header + text + f"\nChosen: {chosen}")

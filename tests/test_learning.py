@@ -59,13 +59,13 @@ def test_the_env_plays_each_episode_s_baselines_once_and_pays_0_for_never_and_0_
             _, rewards, *_ = env.step({a: np.full(2, value, np.int8) for a in env.agents})
             total += rewards["agent_0"]
         returns[name] = total
-    assert env._baselines.played == 2  # never and always, once for the episode seed
+    assert env._rewarder.baselines.played == 2  # never and always, once for the episode seed
     env.close()
     assert returns["always"] == pytest.approx(0.7, abs=1e-6)  # 1 - comm_cost_of_always, whatever the world
     assert returns["never"] == pytest.approx(0.0, abs=1e-6)
     again = parallel_env(seed=1, **kwargs)
     again.reset(seed=7)
-    assert again._baselines.played == 0  # read from the disk cache
+    assert again._rewarder.baselines.played == 0  # read from the disk cache
     again.close()
     with pytest.raises(ValueError, match="reward_baseline must be one of"):
         parallel_env(preset="rl_tiny", reward_baseline="mean")

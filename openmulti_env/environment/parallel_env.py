@@ -68,6 +68,8 @@ without costs is the final completion ratio. `reward_baseline="never_always"` pu
 the same episode is played once with `never` and once with `always` (cached on disk), a step pays its gain
 less `never`'s at that step over what `always` adds by the end, minus `comm_cost_of_always` (0.3) x its
 share of `always`'s bytes; `never` returns 0 and `always` 0.7 in every world (`environment.rewards`).
+`reward_baseline="front"` prices bytes by the episode's fixed-rate front instead (`every:K`, `rate:Q` played
+and cached too): the return is the margin over the front at the team's bytes (`environment.reward_front`).
 
 ### Episode
 Termination when every path is read (`rl`, `fast`: 24 steps, `rl_tiny`: 8, `demo`: 12, `full`: 20): the
@@ -125,7 +127,7 @@ from mapping.team import Team
 from openmulti_env.environment.actions import ActionError, action_size, actions_to_plan
 from openmulti_env.environment.config import env_config, env_workers
 from openmulti_env.experiment import Experiment
-from openmulti_env.environment.rewards import RewardBaselines, play_fixed, step_rewards
+from openmulti_env.environment.rewards import EpisodeRewards, RewardBaselines, play_fixed
 from openmulti_env.environment.render import AGENT_COLOURS, agent_tile, compose, team_panel
 from openmulti_env.environment.observation import ProbeRaster, TeamObserver, slot_instances
 from openmulti_env.world.cache import cached_world
@@ -180,8 +182,7 @@ class OpenMultiParallelEnv(ParallelEnv, EzPickle):
         self._episode_rng, _ = seeding.np_random(seed)
         self.world = None
         self.team: Team | None = None
-        self._baselines: RewardBaselines | None = None
-        self._baseline = None
+        self._rewarder: EpisodeRewards | None = None
         self.timings: dict[str, float] = {}
         self.last_cache_hit: bool | None = None
 
@@ -214,7 +215,7 @@ class OpenMultiParallelEnv(ParallelEnv, EzPickle):
         if self.team is not None:  # freed here by reference counting: a team holds no reference cycles
             self.team.release()  # (tested), so no full garbage collection (130 ms a reset) is needed
             self.team = None
-        self._baseline = self._baselines.episode(episode_seed) if self._baselines is not None else None
+        self._rewarder.start(episode_seed)
         self.team = self._new_team(episode_seed)
         self._snapshots = self.team.snapshots()
         self.agents = list(self.possible_agents)
@@ -241,8 +242,9 @@ class OpenMultiParallelEnv(ParallelEnv, EzPickle):
 
     def _fixed_player(self):
         """``play(episode_seed, send)`` of ``never`` / ``always`` on this env's world (the reward's baselines)."""
-        return lambda seed, send: play_fixed(lambda: self._new_team(seed), self.config.num_agents, self.config.env.horizon,
-                                             self._probe_points, self._probe_normals, send)
+        return lambda seed, schedule: play_fixed(lambda: self._new_team(seed), self.config.num_agents,
+                                                 self.config.env.horizon, self._probe_points, self._probe_normals,
+                                                 schedule, seed)
 
     def _build_world(self) -> None:
         """The world once per env (cached on disk across envs and processes), with its probes and grid."""
@@ -265,8 +267,8 @@ class OpenMultiParallelEnv(ParallelEnv, EzPickle):
         self._floor = floor.reshape(cfg.env.map_size, cfg.env.map_size)
         self._vocabulary = None
         self._frames = RenderCache(self.world, cfg.env.frame_cache_mb)
-        self._baselines = (RewardBaselines(cfg, self.world_seed, self._fixed_player())
-                           if cfg.env.reward_baseline != "none" else None)
+        self._rewarder = EpisodeRewards(cfg.env, RewardBaselines(cfg, self.world_seed, self._fixed_player())
+                                        if cfg.env.reward_baseline != "none" else None)
 
     def step(self, actions: dict):
         with torch_threads(self.config.run.threads):
@@ -313,7 +315,7 @@ class OpenMultiParallelEnv(ParallelEnv, EzPickle):
     def _rewards(self, report, gains: np.ndarray) -> dict[str, float]:
         mb = np.asarray(report.bytes_sent, float) / 1e6
         refused = np.asarray([snapshot.messages["over_budget"] for snapshot in report.agents], float)
-        values = step_rewards(self.config.env, gains, mb, refused, self.steps + 1, self._baseline)
+        values = self._rewarder.step(gains, mb, refused, self.steps + 1)
         return {a: float(values[i]) for i, a in enumerate(self.possible_agents)}
 
     # ---- observations, infos, state ----------------------------------------------------------------

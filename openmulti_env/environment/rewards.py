@@ -14,6 +14,9 @@ price of the share of ``always``'s bytes it spent: 0 for ``never``, 1 - comm_cos
 in every world where ``always`` adds at least ``GAIN_FLOOR`` (and less ``budget_penalty`` for refused messages). Subtracting never's gain step by step also takes out each agent's own mapping progress,
 which no communication decision moves. The two episodes are cached on disk per (world, episode seed and
 everything that shapes the maps), so a training run that revisits its worlds' episodes pays them once.
+
+Front (``"front"``): the same, with the price of bytes read off the episode's fixed-rate front instead of a
+constant (``openmulti_env.environment.reward_front``).
 """
 
 from __future__ import annotations
@@ -29,7 +32,8 @@ from typing import Callable
 import numpy as np
 
 from mapping.perception.model_cache import cache_root
-from mapping.team import RoundPlan
+from openmulti_env.environment.reward_front import (FRONT_SCHEDULES, FrontPoints, front_key, front_price,
+                                                    schedule_plan, schedule_rng)
 
 GAIN_FLOOR = 0.02
 """Smallest ``always - never`` final completion (a fraction) the normalised reward divides by: a world where
@@ -83,7 +87,7 @@ def code_digest() -> str:
     for folder in (root / "mapping", root / "openmulti_env" / "world"):
         for path in sorted(folder.rglob("*.py")):
             digest.update(str(path.relative_to(root)).encode() + path.read_bytes())
-    for path in (Path(__file__), Path(__file__).with_name("parallel_env.py")):
+    for path in (Path(__file__), Path(__file__).with_name("parallel_env.py"), Path(__file__).with_name("reward_front.py")):
         digest.update(path.read_bytes())
     return digest.hexdigest()[:16]
 
@@ -100,51 +104,89 @@ def baseline_key(tree, world_seed: int, episode_seed: int) -> str:
     return hashlib.sha256(json.dumps(parts, sort_keys=True, default=str).encode()).hexdigest()[:32]
 
 
-class RewardBaselines:
-    """Per-episode ``BaselineEpisodes``, from memory, the disk cache, or ``play(episode_seed, send)`` (the env's
-    way to play a fixed schedule: it returns the (T + 1, N) completions and the (N,) MB sent)."""
+def write_record(path: Path, record: dict) -> None:
+    """A cache entry written whole (a temporary file, then renamed): readers never see half of one."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(f".{os.getpid()}.tmp")
+    tmp.write_text(json.dumps(record))
+    os.replace(tmp, path)
 
-    def __init__(self, tree, world_seed: int, play: Callable[[int, bool], tuple[np.ndarray, np.ndarray]]):
-        self.tree, self.world_seed, self.play = tree, int(world_seed), play
+
+def read_record(path: Path, parse: Callable[[dict], object]):
+    """A cache entry, or None if it is missing, torn or of an old format (then it is played again)."""
+    if not path.exists():
+        return None
+    try:
+        return parse(json.loads(path.read_text()))
+    except (ValueError, KeyError, TypeError, json.JSONDecodeError):
+        return None
+
+
+class RewardBaselines:
+    """Per-episode ``BaselineEpisodes`` (and, for the front reward, ``FrontPoints``), from memory, the disk cache,
+    or ``play(episode_seed, schedule)`` (the env's way to play a fixed schedule, ``reward_front.schedule_plan``'s
+    names: it returns the (T + 1, N) completions and the (N,) MB sent)."""
+
+    def __init__(self, tree, world_seed: int, play: Callable[[int, str], tuple[np.ndarray, np.ndarray]],
+                 schedules: tuple[str, ...] = FRONT_SCHEDULES):
+        self.tree, self.world_seed, self.play, self.schedules = tree, int(world_seed), play, tuple(schedules)
         folder = tree.env.cache_dir
         self.folder = (Path(folder).expanduser() if folder is not None else cache_root()) / "reward_baselines"
         self.memory: dict[int, BaselineEpisodes] = {}
+        self.fronts: dict[int, FrontPoints] = {}
         self.played = 0
-        """Episodes played (not found in a cache) by this object: two per new episode seed."""
+        """Episodes played (not found in a cache) by this object: two per new episode seed (and one per front
+        schedule for the front reward)."""
 
     def episode(self, episode_seed: int) -> BaselineEpisodes:
         if episode_seed in self.memory:
             return self.memory[episode_seed]
         path = self.folder / f"{baseline_key(self.tree, self.world_seed, episode_seed)}.json"
-        found = None
-        if path.exists():
-            try:
-                found = BaselineEpisodes.from_record(json.loads(path.read_text()))
-            except (ValueError, KeyError, json.JSONDecodeError):
-                found = None  # a torn or old entry: played again and rewritten
+        found = read_record(path, BaselineEpisodes.from_record)
         if found is None:
-            never, _ = self.play(episode_seed, False)
-            always, always_mb = self.play(episode_seed, True)
+            never, _ = self.play(episode_seed, "never")
+            always, always_mb = self.play(episode_seed, "always")
             self.played += 2
             found = BaselineEpisodes(np.asarray(never, float), np.asarray(always, float), np.asarray(always_mb, float))
-            path.parent.mkdir(parents=True, exist_ok=True)
-            tmp = path.with_suffix(f".{os.getpid()}.tmp")
-            tmp.write_text(json.dumps(found.as_record()))
-            os.replace(tmp, path)
+            write_record(path, found.as_record())
         self.memory[episode_seed] = found
+        return found
+
+    def front(self, episode_seed: int) -> FrontPoints:
+        """The episode's fixed-rate front: ``never`` and ``always`` (``episode``) and each of ``schedules``."""
+        if episode_seed in self.fronts:
+            return self.fronts[episode_seed]
+        base = self.episode(episode_seed)
+        path = self.folder / f"front-{front_key(baseline_key(self.tree, self.world_seed, episode_seed), self.schedules)}.json"
+        played = read_record(path, FrontPoints.from_record)
+        if played is None or played.schedules != self.schedules:
+            mb, completion = [], []
+            for schedule in self.schedules:
+                completions, sent = self.play(episode_seed, schedule)
+                self.played += 1
+                mb.append(float(np.sum(sent)))
+                completion.append(float(np.mean(completions[-1])))
+            played = FrontPoints(self.schedules, np.array(mb), np.array(completion))
+            write_record(path, played.as_record())
+        found = FrontPoints(("never",) + self.schedules + ("always",),
+                            np.concatenate([[0.0], played.mb, [float(base.always_mb.sum())]]),
+                            np.concatenate([[float(base.never[-1].mean())], played.completion,
+                                            [float(base.always[-1].mean())]]))
+        self.fronts[episode_seed] = found
         return found
 
 
 def play_fixed(new_team: Callable[[], object], num_agents: int, horizon: int | None, points: np.ndarray,
-               normals: np.ndarray, send: bool) -> tuple[np.ndarray, np.ndarray]:
-    """``always`` (``send``) or ``never`` on a fresh team from ``new_team()``: (T + 1, N) completions (the share of
-    the probe ``points`` each agent's map reproduces after each round, 0 at the start) and (N,) MB sent."""
+               normals: np.ndarray, schedule: str, episode_seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """A fixed schedule (``reward_front.schedule_plan``: ``never``, ``always``, ``every:K``, ``rate:Q``) on a fresh
+    team from ``new_team()``: (T + 1, N) completions (the share of the probe ``points`` each agent's map
+    reproduces after each round, 0 at the start) and (N,) MB sent."""
     team = new_team()
-    plan = RoundPlan.always(num_agents) if send else RoundPlan.never(num_agents)
+    rng = schedule_rng(schedule, episode_seed)
     completions = [np.zeros(num_agents)]
     try:
         while not team.done and (horizon is None or len(completions) <= horizon):
-            team.round(plan)
+            team.round(schedule_plan(schedule, num_agents, len(completions) - 1, rng))
             covered = team.surface_coverage(points, normals)
             completions.append(np.array([float(np.mean(c)) for c in covered]))
         mb = np.array([s.bytes_sent_total for s in team.snapshots()], float) / 1e6
@@ -154,9 +196,11 @@ def play_fixed(new_team: Callable[[], object], num_agents: int, horizon: int | N
 
 
 def step_rewards(env_settings, gains: np.ndarray, mb: np.ndarray, refused: np.ndarray, step: int,
-                 baseline: BaselineEpisodes | None) -> np.ndarray:
+                 baseline: BaselineEpisodes | None, front: FrontPoints | None = None,
+                 mb_before: float = 0.0) -> np.ndarray:
     """(N,) rewards of one step (``step`` 1-based) from each agent's completion gain (fraction), MB sent and
-    messages refused; ``baseline`` is required with ``reward_baseline="never_always"`` (module docstring)."""
+    messages refused; ``baseline`` is required with ``reward_baseline="never_always"`` (module docstring), and
+    ``front`` with ``"front"``, where ``mb_before`` is what the team sent before this step."""
     n = len(gains)
     team = env_settings.reward != "individual"
     penalty = env_settings.budget_penalty * refused
@@ -168,9 +212,40 @@ def step_rewards(env_settings, gains: np.ndarray, mb: np.ndarray, refused: np.nd
     if baseline is None:
         raise RuntimeError("the normalised reward needs the episode's never/always baseline")
     never_gain, span = baseline.gain_share(step, team)
+    if env_settings.reward_baseline == "front":
+        if front is None or not team:
+            raise RuntimeError("the front reward needs the episode's fixed-rate front and the team reward")
+        price = front_price(front, mb_before, mb_before + float(mb.sum()))
+        return np.full(n, (gains.mean() - never_gain[0] - price) / span[0] - penalty.sum() / n)
     mb_always = np.maximum(baseline.always_mb, 1e-9)
     if team:
         gain = (gains.mean() - never_gain[0]) / span[0]
         cost = env_settings.comm_cost_of_always * mb.sum() / mb_always.sum()
         return np.full(n, gain - cost - penalty.sum() / n)
     return (gains - never_gain) / span - env_settings.comm_cost_of_always * mb / mb_always - penalty
+
+
+class EpisodeRewards:
+    """The env's rewards one episode at a time: the episode's baselines (none, never/always, or with its front)
+    and the MB the team sent so far (the front prices a step's bytes at what was sent before it)."""
+
+    def __init__(self, env_settings, baselines: RewardBaselines | None):
+        if env_settings.reward_baseline != "none" and baselines is None:
+            raise ValueError(f"reward_baseline={env_settings.reward_baseline!r} needs the episodes' baselines")
+        self.settings, self.baselines = env_settings, baselines
+        self.baseline: BaselineEpisodes | None = None
+        self.front: FrontPoints | None = None
+        self.sent_mb = 0.0
+
+    def start(self, episode_seed: int) -> None:
+        """A new episode: its baselines (played or read from the cache) and nothing sent yet."""
+        if self.baselines is not None:
+            self.baseline = self.baselines.episode(episode_seed)
+            self.front = self.baselines.front(episode_seed) if self.settings.reward_baseline == "front" else None
+        self.sent_mb = 0.0
+
+    def step(self, gains: np.ndarray, mb: np.ndarray, refused: np.ndarray, step: int) -> np.ndarray:
+        """(N,) rewards of step ``step`` (1-based): ``step_rewards`` on this episode's baselines."""
+        values = step_rewards(self.settings, gains, mb, refused, step, self.baseline, self.front, self.sent_mb)
+        self.sent_mb += float(np.sum(mb))
+        return values

@@ -114,6 +114,9 @@ def check(tree: Experiment) -> Experiment:
         need(value >= 1, f"{path} must be >= 1, got {value}")
     need(tree.env.reward_baseline in REWARD_BASELINES,
          f"env.reward_baseline must be one of {REWARD_BASELINES}, got {tree.env.reward_baseline!r}")
+    need(tree.env.reward_baseline != "front" or tree.env.reward == "team",
+         f"env.reward_baseline='front' prices the team's bytes on the team's front: it needs env.reward='team', "
+         f"got {tree.env.reward!r}")
     for path, value in (("env.comm_cost_per_mb", tree.env.comm_cost_per_mb), ("env.comm_cost_of_always", tree.env.comm_cost_of_always),
                         ("env.budget_penalty", tree.env.budget_penalty)):
         need(math.isfinite(value) and value >= 0, f"{path} must be a finite number >= 0, got {value}")

@@ -30,8 +30,9 @@ from openmulti_env.world.world import WorldConfig
 
 TEXT_ENCODERS = ("mpnet", "minilm")
 REWARD_MODES = ("team", "individual")
-REWARD_BASELINES = ("none", "never_always")
-"""``env.reward_baseline``: raw gains, or gains over the same episode's never/always (environment.rewards)."""
+REWARD_BASELINES = ("none", "never_always", "front")
+"""``env.reward_baseline``: raw gains, gains over the same episode's never/always (environment.rewards), or
+those gains less the price of bytes on the episode's fixed-rate front (environment.reward_front)."""
 DATA_KINDS = ("auto", "replica", "nice_slam", "scannet")
 PROCESS_MODES = (None, "ray")
 
@@ -78,7 +79,10 @@ class EnvSettings:
     reward_baseline: str = field(default="none", metadata=NEUTRAL_DEFAULT)
     """``none``: the raw completion gain; ``never_always``: each step's gain less ``never``'s at that step, over
     what ``always`` adds by the end, in the same world and episode (both played once and cached): the same scale
-    in every world (``openmulti_env.environment.rewards``). ``comm_cost_per_mb`` is then not used."""
+    in every world (``openmulti_env.environment.rewards``). ``comm_cost_per_mb`` is then not used. ``front``
+    (team reward only): the same gains less what the episode's fixed-rate front completes more at the team's
+    bytes after the step than before it, so the return is the margin over that front
+    (``openmulti_env.environment.reward_front``); ``comm_cost_per_mb`` and ``comm_cost_of_always`` are not used."""
     comm_cost_of_always: float = field(default=0.3, metadata=NEUTRAL_DEFAULT)
     """With ``reward_baseline="never_always"``: the return's price of sending as many bytes as ``always`` does in
     that world (``always`` returns 1 minus this, ``never`` 0)."""

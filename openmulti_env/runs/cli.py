@@ -279,7 +279,7 @@ def build_parser() -> argparse.ArgumentParser:
                    "room0, office0 and room2 are held out for the trade-off table)")
     p.add_argument("--episodes-per-world", type=int, default=2, help="episodes before a worker moves to its next world")
     p.add_argument("--episode-seeds", type=int, metavar="K", help="play each world's episodes from K episode seeds "
-                   "(0..K-1) in turn, so that a world's never/always baselines (--reward-baseline never_always) are "
+                   "(0..K-1) in turn, so that a world's baselines (--reward-baseline never_always or front) are "
                    "played once per seed and then read from the cache (default: a fresh seed every episode)")
     p.add_argument("--backend", choices=("sb3", "rllib"), default="sb3",
                    help="sb3: Stable-Baselines3 PPO in worker processes here; rllib: RLlib's multi-agent PPO, its env "

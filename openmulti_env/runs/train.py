@@ -186,8 +186,9 @@ def env_summary(tree, env_kwargs: dict) -> dict:
 
 def training_title(tree, config) -> str:
     """The learning curve's title: preset, team, reward and cost, action form and critic."""
-    reward = (f"cost {tree.env.comm_cost_per_mb}/MB" if tree.env.reward_baseline == "none"
-              else f"reward over never/always, cost {tree.env.comm_cost_of_always} x always's bytes")
+    reward = {"none": f"cost {tree.env.comm_cost_per_mb}/MB",
+              "front": "reward: the margin over the fixed-rate front"}.get(
+        tree.env.reward_baseline, f"reward over never/always, cost {tree.env.comm_cost_of_always} x always's bytes")
     form = "" if config.action_form == "entries" else f", {config.action_form} form"
     if config.payload != "everything":
         form += f" sending {config.payload}'s choice"
@@ -233,9 +234,9 @@ def train_command(args) -> int:
         env_kwargs["env__action_form"] = "instances"
         tree = env_config(**env_kwargs)
     if tree.env.reward_baseline != "none" and not getattr(args, "episode_seeds", None):
-        print("[openmulti] warning: --reward-baseline never_always without --episode-seeds K plays two more episodes "
-              "(never, always) for every training episode, each on a fresh seed that is never reused; --episode-seeds 2 "
-              "plays them once per world and seed", file=sys.stderr)
+        print(f"[openmulti] warning: --reward-baseline {tree.env.reward_baseline} without --episode-seeds K plays more "
+              "episodes (never, always and, for the front, its fixed schedules) for every training episode, each on a "
+              "fresh seed that is never reused; --episode-seeds 2 plays them once per world and seed", file=sys.stderr)
     if tree.run.workers is None:  # the worker processes split the cores: each env's agents take turns on its own
         # (a Ray cluster's env runners get one CPU each, whatever this machine has)
         env_kwargs["run__workers"] = 1 if getattr(args, "ray", None) else agent_workers_per_env(config.workers)
