@@ -96,3 +96,16 @@ def test_the_env_plays_the_front_once_and_pays_0_on_it_and_less_under_it(tmp_pat
     again.close()
     with pytest.raises(ValueError, match="needs env.reward='team'"):
         parallel_env(preset="rl_tiny", reward_baseline="front", reward="individual")
+
+
+def test_a_torn_or_foreign_cache_record_is_played_again_not_read(tmp_path):
+    from openmulti_env.environment.rewards import read_record
+
+    path = tmp_path / "front.json"
+    for text in ("null", "[1, 2]", "{\"format\": 1, \"schedules\": [\"every:2\"], \"mb\": [1.0, 2.0], \"completion\": [0.5]}",
+                 "{\"format\": 1, \"sched", "{\"format\": 0}"):
+        path.write_text(text)
+        assert read_record(path, FrontPoints.from_record) is None, text
+    good = FrontPoints(("every:2",), np.array([1.0]), np.array([0.5]))
+    path.write_text(__import__("json").dumps(good.as_record()))
+    assert read_record(path, FrontPoints.from_record).schedules == ("every:2",)

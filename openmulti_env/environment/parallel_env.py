@@ -241,7 +241,7 @@ class OpenMultiParallelEnv(ParallelEnv, EzPickle):
                     workers=env_workers(cfg), processes=cfg.run.processes, learner=cfg.run.learner)
 
     def _fixed_player(self):
-        """``play(episode_seed, send)`` of ``never`` / ``always`` on this env's world (the reward's baselines)."""
+        """``play(episode_seed, schedule)`` of a fixed schedule on this env's world (the reward's baselines)."""
         return lambda seed, schedule: play_fixed(lambda: self._new_team(seed), self.config.num_agents,
                                                  self.config.env.horizon, self._probe_points, self._probe_normals,
                                                  schedule, seed)

@@ -9,8 +9,9 @@ judges policies on the same function). A step pays
 
 so the return of an episode is (final completion - F(MB the team sent)) / span: the margin over the fixed-rate
 front at the policy's bytes, the figure a learned schedule is judged by, in units of what talking adds in that
-world. Every schedule on the front returns 0; a byte costs what it buys on the front at the bytes already sent
-(the first megabytes cost most: the front is steepest there).
+world. Every schedule on the front returns 0 (less ``budget_penalty`` for messages refused over a budget); a byte
+costs what it buys on the front at the bytes already sent (the first megabytes cost most: the front is steepest
+there).
 """
 
 from __future__ import annotations
@@ -97,8 +98,11 @@ class FrontPoints:
     def from_record(record: dict) -> "FrontPoints":
         if record.get("format") != FRONT_FORMAT:
             raise ValueError(f"front record of format {record.get('format')!r}, expected {FRONT_FORMAT}")
-        return FrontPoints(tuple(record["schedules"]), np.asarray(record["mb"], float),
-                           np.asarray(record["completion"], float))
+        points = FrontPoints(tuple(record["schedules"]), np.asarray(record["mb"], float),
+                             np.asarray(record["completion"], float))
+        if not len(points.schedules) == len(points.mb) == len(points.completion):
+            raise ValueError("a front record's schedules, MB and completions differ in length")
+        return points
 
 
 def front_price(points: FrontPoints, mb_before: float, mb_after: float) -> float:

@@ -24,10 +24,11 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import threading
 from dataclasses import asdict, dataclass
 from functools import lru_cache
 from pathlib import Path
-from typing import Callable
+from typing import Callable, TypeVar
 
 import numpy as np
 
@@ -35,6 +36,7 @@ from mapping.perception.model_cache import cache_root
 from openmulti_env.environment.reward_front import (FRONT_SCHEDULES, FrontPoints, front_key, front_price,
                                                     schedule_plan, schedule_rng)
 
+T = TypeVar("T")
 GAIN_FLOOR = 0.02
 """Smallest ``always - never`` final completion (a fraction) the normalised reward divides by: a world where
 talking adds under two points would otherwise pay noise x 50."""
@@ -107,18 +109,18 @@ def baseline_key(tree, world_seed: int, episode_seed: int) -> str:
 def write_record(path: Path, record: dict) -> None:
     """A cache entry written whole (a temporary file, then renamed): readers never see half of one."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(f".{os.getpid()}.tmp")
+    tmp = path.with_suffix(f".{os.getpid()}.{threading.get_ident()}.tmp")
     tmp.write_text(json.dumps(record))
     os.replace(tmp, path)
 
 
-def read_record(path: Path, parse: Callable[[dict], object]):
+def read_record(path: Path, parse: Callable[[dict], T]) -> T | None:
     """A cache entry, or None if it is missing, torn or of an old format (then it is played again)."""
     if not path.exists():
         return None
     try:
         return parse(json.loads(path.read_text()))
-    except (ValueError, KeyError, TypeError, json.JSONDecodeError):
+    except (ValueError, KeyError, TypeError, AttributeError, OSError):  # JSONDecodeError is a ValueError
         return None
 
 
@@ -168,9 +170,10 @@ class RewardBaselines:
                 completion.append(float(np.mean(completions[-1])))
             played = FrontPoints(self.schedules, np.array(mb), np.array(completion))
             write_record(path, played.as_record())
-        found = FrontPoints(("never",) + self.schedules + ("always",),
-                            np.concatenate([[0.0], played.mb, [float(base.always_mb.sum())]]),
-                            np.concatenate([[float(base.never[-1].mean())], played.completion,
+        sent = played.mb > 0  # a draw that sent nothing is never again: never's own episode anchors F(0)
+        found = FrontPoints(("never",) + tuple(np.array(self.schedules)[sent]) + ("always",),
+                            np.concatenate([[0.0], played.mb[sent], [float(base.always_mb.sum())]]),
+                            np.concatenate([[float(base.never[-1].mean())], played.completion[sent],
                                             [float(base.always[-1].mean())]]))
         self.fronts[episode_seed] = found
         return found
@@ -229,7 +232,7 @@ class EpisodeRewards:
     """The env's rewards one episode at a time: the episode's baselines (none, never/always, or with its front)
     and the MB the team sent so far (the front prices a step's bytes at what was sent before it)."""
 
-    def __init__(self, env_settings, baselines: RewardBaselines | None):
+    def __init__(self, env_settings, baselines: RewardBaselines | None) -> None:
         if env_settings.reward_baseline != "none" and baselines is None:
             raise ValueError(f"reward_baseline={env_settings.reward_baseline!r} needs the episodes' baselines")
         self.settings, self.baselines = env_settings, baselines
