@@ -128,7 +128,7 @@ from openmulti_env.environment.actions import ActionError, action_size, actions_
 from openmulti_env.environment.config import env_config, env_workers
 from openmulti_env.experiment import Experiment
 from openmulti_env.environment.rewards import EpisodeRewards, RewardBaselines, play_fixed
-from openmulti_env.environment.render import AGENT_COLOURS, agent_tile, compose, team_panel
+from openmulti_env.environment.render import team_picture
 from openmulti_env.environment.observation import ProbeRaster, TeamObserver, slot_instances
 from openmulti_env.world.cache import cached_world
 from openmulti_env.world.stream import RenderCache, world_streams, world_vocabulary
@@ -377,15 +377,9 @@ class OpenMultiParallelEnv(ParallelEnv, EzPickle):
             return None
         if self.render_mode != "rgb_array" or self.team is None:
             return None
-        tiles = [agent_tile(self._observe(i)["map"], AGENT_COLOURS[i % len(AGENT_COLOURS)])
-                 for i in range(len(self.possible_agents))]
-        paths, positions = [], []
-        for i, snapshot in enumerate(self._snapshots):
-            xy = self.world.agent_poses[i][:snapshot.frames_read, :3, 3]
-            rows, cols, inside = self._grid.cells(xy)
-            paths.append(list(zip(rows[inside], cols[inside])))
-            positions.append((rows[-1], cols[-1]) if len(xy) and inside[-1] else None)
-        return compose(tiles, team_panel(self._floor, paths, positions, *self._links))
+        maps = [self._observe(i)["map"] for i in range(len(self.possible_agents))]
+        walked = [poses[:snapshot.frames_read] for poses, snapshot in zip(self.world.agent_poses, self._snapshots)]
+        return team_picture(maps, self._grid, self._floor, walked, self._links)
 
     def close(self) -> None:
         if self.team is not None:

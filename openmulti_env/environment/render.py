@@ -71,3 +71,16 @@ def _upscale(img: np.ndarray, px: int) -> np.ndarray:
     h, w = min(px, big.shape[0]), min(px, big.shape[1])
     out[:h, :w] = big[:h, :w]
     return out
+
+
+def team_picture(maps: list[np.ndarray], grid, floor: np.ndarray, walked: list[np.ndarray],
+                 links: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+    """The env's ``render``: each agent's map tile, then the team panel with the paths walked so far
+    (``walked[i]``: agent i's (F, 4, 4) poses read), where each agent stands, and this round's links."""
+    tiles = [agent_tile(m, AGENT_COLOURS[i % len(AGENT_COLOURS)]) for i, m in enumerate(maps)]
+    paths, positions = [], []
+    for poses in walked:
+        rows, cols, inside = grid.cells(poses[:, :3, 3])
+        paths.append(list(zip(rows[inside], cols[inside])))
+        positions.append((rows[-1], cols[-1]) if len(poses) and inside[-1] else None)
+    return compose(tiles, team_panel(floor, paths, positions, *links))
