@@ -19,6 +19,7 @@ from __future__ import annotations
 import hashlib
 import json
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Callable, Sequence
 
 import numpy as np
@@ -87,7 +88,9 @@ class FrontPoints:
     completion: np.ndarray
     """(K,) the team's mean completion ratio at the end."""
 
-    def function(self) -> Callable[[float], float]:
+    @cached_property
+    def curve(self) -> Callable[[float], float]:
+        """``front`` of these points, built once (every step of an episode reads it)."""
         return front(list(zip(self.mb.tolist(), self.completion.tolist())))
 
     def as_record(self) -> dict:
@@ -107,8 +110,7 @@ class FrontPoints:
 
 def front_price(points: FrontPoints, mb_before: float, mb_after: float) -> float:
     """What the front completes more at the team's MB after this step than before it (a fraction)."""
-    f = points.function()
-    return f(mb_after) - f(mb_before)
+    return points.curve(mb_after) - points.curve(mb_before)
 
 
 def front_key(baseline_key: str, schedules: Sequence[str]) -> str:
