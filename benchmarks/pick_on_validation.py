@@ -3,7 +3,7 @@ no test cell uses.
 
 A run's ``best.json`` is picked by the rolling training return, whose noise is as large as the differences between
 checkpoints (docs/learning.md); the unseen test cells (``learned_vs_fixed.py``) must not choose either. So each
-candidate plays each validation world (``random:SEED``, rooms like the training ones, episode seed 0) with the
+candidate plays each validation world with the
 reward it was trained for (``--reward-baseline never_always`` with ``comm_cost_of_always``, or ``front``; the
 baseline episodes are played once per world and cached), and the highest mean return is the choice. Rows go to ``--out/rows.jsonl``
 as each episode ends (a rerun skips them); the table and the choice to ``--out/validation.md`` and
@@ -11,8 +11,12 @@ as each episode ends (a rerun skips them); the table and the choice to ``--out/v
 
 Run: `.venv/bin/python benchmarks/pick_on_validation.py --setting "rl_lite,link_range_m=2.5" --candidates
 runs/learn/gate_range_s0/best.json runs/learn/gate_range_s0/latest.json ... --out docs/schedules/validation_range`
-(about 12 s an episode here, plus two baseline episodes per world the first time). On a Ray cluster every
+(about 12 s an episode here, plus the baseline episodes per world the first time). On a Ray cluster every
 (world, candidate) is an independent task.
+
+A world is ``random:SEED`` (a room like the training ones, played at ``--episode-seed``) or ``SCENE:SEED`` (a
+furnished preset scene built and played at that seed, as ``learned_vs_fixed.py``'s cells are): ``--worlds
+furnished`` is room0 and office0 at seeds 6-8, scenes and seeds no test cell uses.
 """
 
 from __future__ import annotations
@@ -30,7 +34,18 @@ from openmulti_env.environment.config import env_config  # noqa: E402
 from policies import make_policy  # noqa: E402
 
 WORLDS = ("random:200", "random:201", "random:202")
-"""Training walked ``random:100``-``107``; the test cells are room1 / office1 / office2."""
+"""Training walked ``random:100``-``107``; the test cells are room1 / office1 / office2 / office3 / office4 / room2."""
+FURNISHED = ("room0:6", "room0:7", "room0:8", "office0:6", "office0:7", "office0:8")
+"""Furnished rooms like the test cells' (the two preset scenes no test cell uses), at seeds no test cell uses."""
+
+
+def split_world(world: str, episode_seed: int) -> tuple[str, int | None, int]:
+    """``"room0:6"`` -> ("room0", 6, 6): a preset scene built and played at its seed; ``"random:200"`` ->
+    ("random:200", None, episode_seed): a random room played at the episode seed."""
+    head, sep, tail = world.rpartition(":")
+    if sep and head and head != "random" and tail.isdigit():
+        return head, int(tail), int(tail)
+    return world, None, episode_seed
 
 
 def validation_episode(env, policy, seed: int) -> dict:
@@ -69,7 +84,8 @@ def table(rows: list[dict], candidates: list[str]) -> tuple[str, str]:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--setting", default="rl_lite", help="preset[,field=value...] as in training")
-    parser.add_argument("--worlds", nargs="+", default=list(WORLDS))
+    parser.add_argument("--worlds", nargs="+", default=list(WORLDS),
+                        help="random:SEED or SCENE:SEED worlds, or `furnished` (" + " ".join(FURNISHED) + ")")
     parser.add_argument("--episode-seed", type=int, default=0)
     parser.add_argument("--comm-cost-of-always", type=float, default=0.3)
     parser.add_argument("--reward-baseline", choices=("never_always", "front"), default="never_always",
@@ -77,6 +93,7 @@ def main() -> None:
     parser.add_argument("--candidates", nargs="+", required=True, help="policy files (NAME:mode for a file's mode)")
     parser.add_argument("--out", default="runs/validation")
     args = parser.parse_args()
+    worlds = [w for world in args.worlds for w in (FURNISHED if world == "furnished" else (world,))]
     preset, overrides = parse_setting(args.setting)
     overrides.update(reward_baseline=args.reward_baseline, comm_cost_of_always=args.comm_cost_of_always)
     out = Path(args.out)
@@ -84,35 +101,38 @@ def main() -> None:
     rows_path = out / "rows.jsonl"
     rows = [json.loads(line) for line in rows_path.read_text().splitlines()] if rows_path.exists() else []
     def key(row: dict) -> tuple:  # a row counts for this call only under the same reward and episode
-        return (row["setting"], row["episode_seed"], row.get("reward_baseline", "never_always"),
-                row["comm_cost_of_always"], row["world"], row["policy"])
+        return (row["setting"], row.get("reward_baseline", "never_always"), row["comm_cost_of_always"],
+                row["world"], row["episode_seed"], row["policy"])
 
-    here = (args.setting, args.episode_seed, args.reward_baseline, args.comm_cost_of_always)
+    here = (args.setting, args.reward_baseline, args.comm_cost_of_always)
     done = {key(r) for r in rows}
     n = env_config(preset, **overrides).num_agents
-    for world in args.worlds:
+    for world in worlds:
+        scene, world_seed, episode_seed = split_world(world, args.episode_seed)
         envs: dict[str, object] = {}
         for name in args.candidates:
-            if here + (world, name) in done:
+            if here + (world, episode_seed, name) in done:
                 continue
-            policy = make_policy(name, n, args.episode_seed)
-            env = env_for(envs, policy, preset, scene=world, **overrides)
-            row = {"setting": args.setting, "episode_seed": args.episode_seed, "reward_baseline": args.reward_baseline,
+            policy = make_policy(name, n, episode_seed)
+            env = env_for(envs, policy, preset, scene=scene, seed=world_seed, **overrides)
+            row = {"setting": args.setting, "episode_seed": episode_seed, "reward_baseline": args.reward_baseline,
                    "comm_cost_of_always": args.comm_cost_of_always, "world": world, "policy": name,
-                   **validation_episode(env, policy, args.episode_seed)}
+                   **validation_episode(env, policy, episode_seed)}
             rows.append(row)
             append_row(rows_path, row)
             print(f"{world} {name}: return {row['return']:.3f}, {row['completion']:.2f} %, {row['mb']:.1f} MB", flush=True)
         for env in envs.values():
             env.close()
-    mine = [r for r in rows if key(r)[:4] == here and r["world"] in args.worlds]
+    played = {(world, split_world(world, args.episode_seed)[2]) for world in worlds}
+    mine = [r for r in rows if key(r)[:3] == here and (r["world"], r["episode_seed"]) in played]
     text, chosen = table(mine, list(args.candidates))
     reward = ("the margin over the fixed-rate front" if args.reward_baseline == "front"
               else f"never/always baselines, {args.comm_cost_of_always} x always's bytes")
-    header = (f"Setting `{args.setting}`, validation worlds {', '.join(args.worlds)} (episode seed {args.episode_seed}), "
+    header = (f"Setting `{args.setting}`, validation worlds {', '.join(worlds)} (`random:SEED` at episode seed "
+              f"{args.episode_seed}, `SCENE:SEED` at its seed), "
               f"the training reward ({reward}); one episode per world and candidate.\n\n")
     (out / "validation.md").write_text(header + text + f"\nChosen: `{chosen}` (the highest mean return).\n")
-    (out / "choice.json").write_text(json.dumps({"chosen": chosen, "setting": args.setting, "worlds": args.worlds}) + "\n")
+    (out / "choice.json").write_text(json.dumps({"chosen": chosen, "setting": args.setting, "worlds": worlds}) + "\n")
     print(header + text + f"\nChosen: {chosen}")
 
 
