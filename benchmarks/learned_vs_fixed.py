@@ -43,16 +43,42 @@ REFERENCE = ("at:11",)
 """Not on either front: the whole map once in the last round (rl_lite's 12 rounds), for reading the table."""
 
 
-def margins(rows: list[dict], policy: str, family: tuple[str, ...]) -> np.ndarray:
+def cell_margins(rows: list[dict], policy: str, family: tuple[str, ...]) -> dict[str, float]:
     """Per cell with every needed row: the policy's completion minus the family's front at its MB."""
-    out = []
+    out = {}
     for cell in dict.fromkeys(r["cell"] for r in rows):
         mine = {r["policy"]: r for r in rows if r["cell"] == cell}
         if policy not in mine or not all(p in mine for p in family):
             continue
         f = front([(mine[p]["mb"], mine[p]["completion"]) for p in family])
-        out.append(mine[policy]["completion"] - f(mine[policy]["mb"]))
-    return np.array(out)
+        out[cell] = mine[policy]["completion"] - f(mine[policy]["mb"])
+    return out
+
+
+def margins(rows: list[dict], policy: str, family: tuple[str, ...]) -> np.ndarray:
+    """The per-cell margins as an array (cells in the rows' order)."""
+    return np.array(list(cell_margins(rows, policy, family).values()))
+
+
+def paired(rows: list[dict], a: str, b: str, family: tuple[str, ...] = FIXED) -> np.ndarray:
+    """Per cell both were played on: a's margin over the family's front minus b's (points). Each is measured
+    against the front at its own bytes, so two policies that send different amounts compare fairly."""
+    ma, mb = cell_margins(rows, a, family), cell_margins(rows, b, family)
+    return np.array([ma[cell] - mb[cell] for cell in ma if cell in mb])
+
+
+def pairs_table(rows: list[dict], pairs: list[tuple[str, str]]) -> str:
+    """The paired differences of margins over the fixed-rate front, mean ± standard error over cells."""
+    lines = ["| policy | minus | cells | margin difference [points] |", "|---|---|---|---|"]
+    for a, b in pairs:
+        d = paired(rows, a, b)
+        if len(d) < 2:
+            lines.append(f"| `{short_name(a)}` | `{short_name(b)}` | {len(d)} | - |")
+            continue
+        se = d.std(ddof=1) / np.sqrt(len(d))
+        verdict = " **> 2 SE**" if d.mean() > 2 * se else (" < -2 SE" if d.mean() < -2 * se else "")
+        lines.append(f"| `{short_name(a)}` | `{short_name(b)}` | {len(d)} | {d.mean():+.2f} ± {se:.2f}{verdict} |")
+    return "\n".join(lines) + "\n"
 
 
 def report(rows: list[dict], learned: list[str]) -> str:
@@ -132,6 +158,8 @@ def main() -> None:
                         "`learned`, or any policy name (e.g. a fixed-timing reference, `instance_novelty:start=9`)")
     parser.add_argument("--show", nargs="*", default=None, help="the policies the picture marks (default: every "
                         "--learned one; the table lists them all)")
+    parser.add_argument("--pair", nargs=2, action="append", default=[], metavar=("A", "B"),
+                        help="also report A's margin over the fixed-rate front minus B's, paired per cell (repeatable)")
     parser.add_argument("--out", default="runs/learned_vs_fixed")
     args = parser.parse_args()
     preset, overrides = parse_setting(args.setting)
@@ -159,7 +187,9 @@ def main() -> None:
     mine = [r for r in rows if r["setting"] == args.setting]
     text = (f"Setting `{args.setting}`, cells {', '.join(dict.fromkeys(r['cell'] for r in mine))}; the env's completion "
             "estimate, one episode per cell and policy; margins are paired per cell, mean ± standard error.\n\n"
-            + report(mine, list(args.learned)))
+            + report(mine, list(args.learned))
+            + ("\nPaired, per cell (each margin against the front at its own bytes):\n\n"
+               + pairs_table(mine, [tuple(p) for p in args.pair]) if args.pair else ""))
     (out / "learned_vs_fixed.md").write_text(text)
     plot(mine, list(args.learned if args.show is None else args.show), out / "fronts.png")
     print(text)
