@@ -67,6 +67,13 @@ def paired(rows: list[dict], a: str, b: str, family: tuple[str, ...] = FIXED) ->
     return np.array([ma[cell] - mb[cell] for cell in ma if cell in mb])
 
 
+def mean_se(values: np.ndarray) -> str:
+    """``+1.23 ± 0.45``, marked when the mean is beyond two standard errors either way."""
+    se = values.std(ddof=1) / np.sqrt(len(values))
+    verdict = " **> 2 SE**" if values.mean() > 2 * se else (" < -2 SE" if values.mean() < -2 * se else "")
+    return f"{values.mean():+.2f} ± {se:.2f}{verdict}"
+
+
 def pairs_table(rows: list[dict], pairs: list[tuple[str, str]]) -> str:
     """The paired differences of margins over the fixed-rate front, mean ± standard error over cells."""
     lines = ["| policy | minus | cells | margin difference [points] |", "|---|---|---|---|"]
@@ -75,9 +82,7 @@ def pairs_table(rows: list[dict], pairs: list[tuple[str, str]]) -> str:
         if len(d) < 2:
             lines.append(f"| `{short_name(a)}` | `{short_name(b)}` | {len(d)} | - |")
             continue
-        se = d.std(ddof=1) / np.sqrt(len(d))
-        verdict = " **> 2 SE**" if d.mean() > 2 * se else (" < -2 SE" if d.mean() < -2 * se else "")
-        lines.append(f"| `{short_name(a)}` | `{short_name(b)}` | {len(d)} | {d.mean():+.2f} ± {se:.2f}{verdict} |")
+        lines.append(f"| `{short_name(a)}` | `{short_name(b)}` | {len(d)} | {mean_se(d)} |")
     return "\n".join(lines) + "\n"
 
 
@@ -97,9 +102,7 @@ def report(rows: list[dict], learned: list[str]) -> str:
             if len(m) < 2:
                 cells.append("-")
                 continue
-            se = m.std(ddof=1) / np.sqrt(len(m))
-            verdict = " **> 2 SE**" if m.mean() > 2 * se else (" < -2 SE" if m.mean() < -2 * se else "")
-            cells.append(f"{m.mean():+.2f} ± {se:.2f}{verdict}")
+            cells.append(mean_se(m))
         lines.append(f"| `{policy}` | {len(mine)} | {np.mean([r['mb'] for r in mine]):.1f} ({100 * share:.0f} %) | "
                      + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
