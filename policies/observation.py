@@ -71,6 +71,9 @@ INSTANCE_FEATURES = ("present", "lacks", "change", "copy_age", "shared", "confid
 OBSERVATION_VERSION = 2
 """1: ``map`` and ``comm``; 2 (2026-12-06): ``links`` added, and ``instances`` with the instance action form.
 ``map`` and ``comm`` are unchanged, so a policy that reads only them (the shipped network) reads either."""
+OBSERVATION_VERSIONS = tuple(range(1, OBSERVATION_VERSION + 1))
+"""Every observation version there has been: a policy file records one of these (another was written by a
+newer release, or by hand)."""
 AGE_SCALE = 16.0
 """Rounds after which an age feature reads 1."""
 SIZE_SCALE_M = 4.0

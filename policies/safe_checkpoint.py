@@ -1,34 +1,28 @@
 """Training checkpoints that cannot run code when a run resumes from them.
 
 SB3's ``PPO.load`` and RLlib's ``restore_from_path`` unpickle: a crafted checkpoint in a run folder (one
-copied from elsewhere, or dropped in a shared folder) runs whatever it holds. So:
-
-- SB3: the checkpoint is ``checkpoint.pt``, tensors, numbers and strings only (the policy's and the
-  optimiser's state and the step counters), read with ``torch.load(weights_only=True)``: an object of any
-  other kind is refused, never built. An older ``checkpoint.zip`` is refused with how to start again.
-- RLlib's checkpoint format is its own (pickled state): each checkpoint this package writes is signed
-  (HMAC-SHA256 over its files, with a key kept in the user's cache folder, readable by the user only), and
-  only a checkpoint whose signature matches is restored: one written elsewhere, edited or unsigned is
-  refused with the reason.
+copied from elsewhere, or dropped in a shared folder) runs whatever it holds. So neither is used. Both backends
+write ``checkpoint.pt``: tensors, numbers and strings only (the policy's and the optimiser's state and the step
+counters), read with ``torch.load(weights_only=True)``: an object of any other kind is refused, never built. On
+resume the algorithm is rebuilt from the run's settings and only this state is put into it. An older release's
+pickled checkpoints (SB3's ``checkpoint.zip``, RLlib's ``checkpoint/`` folder) are refused with how to start
+again, never read.
 """
 
 from __future__ import annotations
 
-import hashlib
-import hmac
-import json
 import os
 import pickle
-import secrets
 from pathlib import Path
+from typing import Any
 
+import numpy as np
 import torch
 
 from policies.scripted import PolicyError
 
 FORMAT = "openmulti.training-checkpoint"
 VERSION = 1
-SIGNATURE_NAME = "openmulti-signature.json"
 
 
 class UnsafeCheckpointError(PolicyError):
@@ -36,9 +30,13 @@ class UnsafeCheckpointError(PolicyError):
 
 
 def save_training_state(path: Path, state: dict, counters: dict[str, int]) -> None:
-    """``state`` (nested dicts / lists of tensors, numbers, strings) and ``counters`` into ``path``, atomically."""
-    tmp = path.with_name(path.name + ".tmp")
-    torch.save({"format": FORMAT, "version": VERSION, "counters": dict(counters), "state": state}, tmp)
+    """``state`` (nested dicts / lists of tensors, numbers, strings) and ``counters`` into ``path``, atomically.
+
+    The temporary file is created new (``O_EXCL``): a symlink planted under its name is replaced, never followed."""
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    tmp.unlink(missing_ok=True)
+    with os.fdopen(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666), "wb") as f:
+        torch.save({"format": FORMAT, "version": VERSION, "counters": dict(counters), "state": state}, f)
     os.replace(tmp, path)
 
 
@@ -71,62 +69,27 @@ def refuse_pickled_checkpoint(path: Path) -> None:
             f"now {path.with_suffix('.pt').name}, tensors only")
 
 
-# ---- RLlib: signed checkpoint folders -----------------------------------------------------------------------
-def sign_checkpoint(folder: Path, key_dir: Path | None = None) -> None:
-    """Write the signature of every file in ``folder`` (call after RLlib wrote it, before it is swapped in)."""
-    signature = {"format": FORMAT + ".signature", "version": VERSION, "hmac_sha256": _digest(folder, key_dir)}
-    (folder / SIGNATURE_NAME).write_text(json.dumps(signature))
-
-
-def verify_checkpoint(folder: Path, key_dir: Path | None = None) -> None:
-    """UnsafeCheckpointError unless ``folder`` carries this user's signature over exactly its files."""
-    try:
-        signature = json.loads((folder / SIGNATURE_NAME).read_text())
-        recorded = str(signature["hmac_sha256"])
-    except (OSError, ValueError, KeyError, TypeError):
+def refuse_pickled_rllib_checkpoint(folder: Path) -> None:
+    """UnsafeCheckpointError when ``folder`` (an older release's RLlib ``checkpoint/``: pickled state) exists."""
+    if folder.exists():
         raise UnsafeCheckpointError(
-            f"{folder} carries no signature of this package (an older release's, or one written elsewhere): RLlib "
-            "restores by unpickling, which could run code, so it is not read. Delete it (or train into a new "
-            "--out) to start again") from None
-    if not hmac.compare_digest(recorded, _digest(folder, key_dir)):
-        raise UnsafeCheckpointError(
-            f"{folder} was changed after it was written, or written with another user's key: RLlib restores by "
-            "unpickling, which could run code, so it is not read. Delete it (or train into a new --out) to start "
-            "again")
+            f"{folder} is an RLlib checkpoint folder (written by an older release, or placed there): RLlib restores "
+            f"by unpickling, which could run code, so it is not read. Delete it (or train into a new --out) to start "
+            f"again; checkpoints are now {folder.name}.pt, tensors only")
 
 
-def _digest(folder: Path, key_dir: Path | None) -> str:
-    mac = hmac.new(_key(key_dir), digestmod=hashlib.sha256)
-    for path in sorted(p for p in folder.rglob("*") if p.is_file() and p.name != SIGNATURE_NAME):
-        name = path.relative_to(folder).as_posix().encode()
-        mac.update(len(name).to_bytes(8, "little") + name)
-        with open(path, "rb") as f:
-            data = f.read()
-        mac.update(len(data).to_bytes(8, "little") + data)
-    return mac.hexdigest()
-
-
-def user_cache_folder() -> Path:
-    """``$OPENMULTI_CACHE``, else ``$XDG_CACHE_HOME/openmulti``, else ``~/.cache/openmulti`` (the folder
-    ``mapping.perception.model_cache.cache_root`` names; ``policies`` imports nothing of ``mapping``)."""
-    if os.environ.get("OPENMULTI_CACHE"):
-        return Path(os.environ["OPENMULTI_CACHE"]).expanduser()
-    return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "openmulti"
-
-
-def _key(key_dir: Path | None) -> bytes:
-    """This user's signing key (made on first use, readable by the user only)."""
-    path = (key_dir or user_cache_folder()) / "checkpoint-signing.key"
-    if not path.is_file():
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
-        with os.fdopen(fd, "wb") as f:
-            f.write(secrets.token_bytes(32))
-        try:
-            os.link(tmp, path)  # the first writer's key wins when two processes race
-        except FileExistsError:
-            pass
-        finally:
-            tmp.unlink(missing_ok=True)
-    return path.read_bytes()
+def tensors_only(state: Any, where: str = "state") -> Any:
+    """``state`` with NumPy arrays as tensors and NumPy scalars as Python numbers (what ``weights_only`` reads):
+    RLlib hands its module and optimiser state over as NumPy. ValueError naming the entry for anything else."""
+    if isinstance(state, dict):
+        return {key: tensors_only(value, f"{where}[{key!r}]") for key, value in state.items()}
+    if isinstance(state, (list, tuple)):
+        return type(state)(tensors_only(value, f"{where}[{i}]") for i, value in enumerate(state))
+    if isinstance(state, np.ndarray):
+        return torch.tensor(state)  # a copy, 0-d arrays (Adam's step) kept 0-d
+    if isinstance(state, np.generic):
+        return state.item()
+    if state is None or isinstance(state, (torch.Tensor, bool, int, float, str)):
+        return state
+    raise ValueError(f"{where} is a {type(state).__name__}: a training checkpoint holds tensors, numbers and "
+                     "strings only")

@@ -8,24 +8,26 @@ no KL term, value weight 0.5, gradient norm 0.5), same run folder (resumable che
 algorithm to the digit (advantage normalisation, minibatching and seeding differ). Why a second backend: RLlib scales the env runners over a cluster
 (``address``), which an env at about one step per second needs.
 
-Read top to bottom: settings -> Ray -> the env registered for the runners -> PPO config with
-``CommRLModule`` -> fresh or restored algorithm -> train iterations, each logging its finished episodes,
-checkpointing every ``chunk_env_steps`` and exporting the policy. ``env_factory(index)`` makes runner
+Read top to bottom: settings -> the last checkpoint, if any -> Ray -> the env registered for the runners -> PPO
+config with ``CommRLModule`` -> the algorithm, with the checkpoint's state put into it -> train iterations, each
+logging its finished episodes, checkpointing every ``chunk_env_steps`` and exporting the policy. A checkpoint
+is ``checkpoint.pt``: the learner's module and optimiser state as tensors and the step counters
+(``policies.safe_checkpoint``), never RLlib's own pickled checkpoint folder, so resuming runs no code from the
+run folder. ``env_factory(index)`` makes runner
 ``index``'s ParallelEnv; this module imports no env.
 """
 
 from __future__ import annotations
 
-import math
 import os
-import shutil
 from dataclasses import asdict
 from pathlib import Path
 from typing import Callable
 
 import numpy as np
 
-from policies.safe_checkpoint import sign_checkpoint, verify_checkpoint
+from policies.safe_checkpoint import (UnsafeCheckpointError, load_training_state, refuse_pickled_rllib_checkpoint,
+                                      save_training_state, tensors_only)
 from policies.train import EpisodeLog, TrainConfig, claim_run_folder
 
 ENV_NAME = "openmulti_comm"
@@ -72,28 +74,33 @@ def _env_creator(env_factory: Callable[[int], object], worlds_per_runner: int = 
     return create
 
 
-def _save_checkpoint(algo, path: Path) -> None:
-    """``algo.save_to_path`` into ``<path>.tmp``, then swapped in through ``<path>.old``; a kill at any
-    point leaves a whole checkpoint that ``_recover_checkpoint`` finds."""
-    tmp, old = path.with_name(path.name + ".tmp"), path.with_name(path.name + ".old")
-    shutil.rmtree(tmp, ignore_errors=True)
-    algo.save_to_path(str(tmp.resolve()))
-    sign_checkpoint(tmp)  # restored only with this signature (policies.safe_checkpoint)
-    if path.exists():
-        shutil.rmtree(old, ignore_errors=True)  # left by a kill after an earlier swap
-        os.replace(path, old)
-    os.replace(tmp, path)
-    shutil.rmtree(old, ignore_errors=True)
+LEARNER_STATE = ("learner_group/learner/rl_module", "learner_group/learner/optimizer")
+"""What a checkpoint keeps of the algorithm: the learner's module weights and optimiser state. The env runners
+get the weights from the learner; their connectors hold no state (no observation filter is configured)."""
 
 
-def _recover_checkpoint(path: Path) -> None:
-    """After a kill in the middle of ``_save_checkpoint``: the old checkpoint back in place when the new one
-    never arrived, and the half-written leftovers gone."""
-    tmp, old = path.with_name(path.name + ".tmp"), path.with_name(path.name + ".old")
-    if not path.exists() and old.exists():
-        os.replace(old, path)
-    shutil.rmtree(tmp, ignore_errors=True)
-    shutil.rmtree(old, ignore_errors=True)
+def _save_checkpoint(algo, path: Path, env_steps: int) -> None:
+    """The learner's module and optimiser state (tensors) and the run's counters into ``path``, atomically."""
+    from ray.rllib.core import COMPONENT_LEARNER, COMPONENT_LEARNER_GROUP  # noqa: PLC0415
+
+    learner = algo.get_state(components=list(LEARNER_STATE))[COMPONENT_LEARNER_GROUP][COMPONENT_LEARNER]
+    state = {key: tensors_only(learner[key], key) for key in ("rl_module", "optimizer")}
+    save_training_state(path, state, {"env_steps": int(env_steps), "iterations": int(algo.iteration)})
+
+
+def _restore_checkpoint(algo, path: Path, state: dict) -> None:
+    """Put a checkpoint's learner state into the freshly built ``algo`` (weights synced to the env runners);
+    UnsafeCheckpointError when it does not fit this run's module."""
+    from ray.rllib.core import COMPONENT_LEARNER, COMPONENT_LEARNER_GROUP  # noqa: PLC0415
+
+    if set(state) != {"rl_module", "optimizer"} or set(state["rl_module"]) != {MODULE}:
+        raise UnsafeCheckpointError(f"{path} holds {sorted(state)}, not this run's learner state; delete it (or "
+                                    "train into a new --out) to start again")
+    try:
+        algo.set_state({COMPONENT_LEARNER_GROUP: {COMPONENT_LEARNER: state}})
+    except (KeyError, ValueError, RuntimeError, TypeError) as exc:
+        raise UnsafeCheckpointError(f"{path} does not fit this run's policy ({str(exc)[:200]}); delete it (or train "
+                                    "into a new --out) to start again") from None
 
 
 def train_rllib(env_factory: Callable[[int], object], config: TrainConfig, out: str | Path, training_record: dict,
@@ -130,6 +137,12 @@ def train_rllib(env_factory: Callable[[int], object], config: TrainConfig, out: 
     out = Path(out)
     settings = claim_run_folder(out, {"train": asdict(config), "backend": "rllib", **training_record})
 
+    # ---- the last checkpoint, read before an env or Ray starts (tensors only: resuming runs no code) ----
+    checkpoint = out / "checkpoint.pt"
+    refuse_pickled_rllib_checkpoint(out / "checkpoint")
+    state, counters = load_training_state(checkpoint) if checkpoint.exists() else (None, {})
+    resumed_at = int(counters.get("env_steps", 0))
+
     # ---- the policy's shapes, from one env --------------------------------------------------------------
     probe = env_factory(0)
     agent = probe.possible_agents[0]
@@ -138,10 +151,8 @@ def train_rllib(env_factory: Callable[[int], object], config: TrainConfig, out: 
                                    comm_size=int(probe.observation_space(agent)["comm"].shape[0]),
                                    actions=int(probe.action_space(agent).n)).as_dict()
     probe.close()
-    checkpoint = out / "checkpoint"
-    _recover_checkpoint(checkpoint)
+
     log = EpisodeLog(out / "log.csv", num_agents)
-    resumed_at = int(log.rows[-1]["env_steps"]) if checkpoint.exists() and log.rows else 0
 
     # ---- Ray: here or on a cluster ------------------------------------------------------------------------
     started_here = not ray.is_initialized()
@@ -179,11 +190,10 @@ def train_rllib(env_factory: Callable[[int], object], config: TrainConfig, out: 
         algo = ppo.build_algo()
 
         # ---- fresh, or from the last checkpoint ------------------------------------------------------------
-        env_steps = 0
-        if checkpoint.exists():
-            verify_checkpoint(checkpoint)  # RLlib unpickles: only a checkpoint this user's key signed
-            algo.restore_from_path(str(checkpoint.resolve()))
-            env_steps = max(resumed_at, _sampled(algo, ENV_RUNNER_RESULTS, NUM_ENV_STEPS_SAMPLED_LIFETIME))
+        # (a rebuilt algorithm counts env steps from 0: the run's count is the checkpoint's plus RLlib's)
+        env_steps = resumed_at
+        if state is not None:
+            _restore_checkpoint(algo, checkpoint, state)
             print(f"[openmulti] resumed RLlib training at {env_steps} env steps from {checkpoint}")
 
         # ---- train iterations: log, checkpoint and export every chunk ---------------------------------------
@@ -194,7 +204,7 @@ def train_rllib(env_factory: Callable[[int], object], config: TrainConfig, out: 
             while env_steps < config.total_env_steps:
                 result = algo.train()
                 runners = result.get(ENV_RUNNER_RESULTS, {})
-                now = int(runners.get(NUM_ENV_STEPS_SAMPLED_LIFETIME, env_steps))
+                now = resumed_at + int(runners.get(NUM_ENV_STEPS_SAMPLED_LIFETIME, env_steps - resumed_at))
                 for runner, episode_return, completion, mb in runners.get(EPISODES_KEY, []) or []:
                     log.add(now, max(runner - 1, 0), episode_return, completion, mb)
                 bar.update(min(now, config.total_env_steps) - min(env_steps, config.total_env_steps))
@@ -203,7 +213,7 @@ def train_rllib(env_factory: Callable[[int], object], config: TrainConfig, out: 
                 if env_steps < next_chunk and env_steps < config.total_env_steps:
                     continue
                 next_chunk = (env_steps // config.chunk_env_steps + 1) * config.chunk_env_steps
-                _save_checkpoint(algo, checkpoint)
+                _save_checkpoint(algo, checkpoint, env_steps)
                 network = export_module(algo.get_module(MODULE))
                 record = {**settings, "env_steps": env_steps, "episodes": len(log.rows),
                           "rolling_return": log.rolling_return(config.rolling)}
@@ -220,11 +230,3 @@ def train_rllib(env_factory: Callable[[int], object], config: TrainConfig, out: 
             ray.shutdown()
     return out / "best.json"
 
-
-def _sampled(algo, group: str, key: str) -> int:
-    """The restored algorithm's lifetime count of ``group/key`` (0 when it has none)."""
-    try:
-        value = algo.metrics.peek((group, key), default=0)
-    except (KeyError, AttributeError, TypeError):
-        return 0
-    return int(value) if value is not None and not (isinstance(value, float) and math.isnan(value)) else 0

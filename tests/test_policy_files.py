@@ -212,6 +212,61 @@ def test_a_crafted_architecture_is_refused_before_anything_of_its_size_is_built(
     assert load_policy(path)[1]["num_agents"] == 3 and built == ["meta", "meta", "cpu"]  # a fitting file: built
 
 
+@pytest.mark.parametrize("bad", [float("nan"), float("inf")])
+def test_non_finite_weights_are_refused_even_with_a_recomputed_hash(tmp_path, bad):
+    import hashlib
+    import re
+
+    from safetensors.torch import save
+
+    network = _network()
+    path = save_policy(tmp_path / "p", network, 3, {"command": "test"})
+    weights = {k: v.clone() for k, v in network.state_dict().items()}
+    weights["features.trunk.0.bias"][5] = bad
+    blob = save(weights)
+    (tmp_path / "p.safetensors").write_bytes(blob)
+    path.write_text(json.dumps({**json.loads(path.read_text()), "sha256": hashlib.sha256(blob).hexdigest()}))
+    network.load_state_dict(weights)  # what loading it would give: with NaN every logit NaN, and that never sends
+    sends = network.act(np.zeros((3, 16, 16, len(MAP_CHANNELS)), np.uint8), np.zeros((3, comm_size(3))))
+    assert not (np.isnan(bad) and sends.any())
+    with pytest.raises(PolicyError, match=re.escape(str(tmp_path / "p.safetensors")) +
+                       ".*tensor 'features.trunk.0.bias' holds 1 non-finite value.*NaN or inf"):
+        load_policy(path)
+
+
+def test_an_observation_version_that_does_not_exist_is_refused(tmp_path):
+    path = save_policy(tmp_path / "p", _network(), 3, {"command": "test"})
+    record = json.loads(path.read_text())
+    for version, what in ((99, "unknown"), ("banana", "not a whole number"), (True, "not a whole number")):
+        path.write_text(json.dumps({**record, "observation_version": version}))
+        with pytest.raises(PolicyError, match=f"{path}.* records observation_version {version!r}, {what}.*this "
+                                              "release reads observation versions 1, 2"):
+            load_policy(path)
+    path.write_text(json.dumps({k: v for k, v in record.items() if k != "observation_version"}))
+    assert load_policy(path)[1]["num_agents"] == 3  # written before the version was recorded: version 1
+
+
+def test_an_oversized_or_deeply_nested_policy_json_is_refused_before_it_is_read_or_parsed(tmp_path, monkeypatch):
+    from pathlib import Path
+
+    import policies.files as files
+
+    path = save_policy(tmp_path / "p", _network(), 3, {"command": "test"})
+    record = json.loads(path.read_text())
+    (tmp_path / "big.safetensors").write_bytes((tmp_path / "p.safetensors").read_bytes())
+    with (tmp_path / "big.json").open("wb") as f:
+        f.truncate(files.MAX_JSON_BYTES + 1)  # sparse: nothing written
+    with monkeypatch.context() as patch:
+        patch.setattr(Path, "open", lambda *a, **k: pytest.fail("the oversized JSON was opened"))
+        with pytest.raises(PolicyError, match=f"{tmp_path / 'big.json'} is 1,048,577 bytes, over the 1,048,576"):
+            load_policy(tmp_path / "big.json")
+    path.write_text('{"format": ' + "[" * 100_000 + "]" * 100_000 + "}")  # json.loads: RecursionError
+    with pytest.raises(PolicyError, match=f"{path} nests objects and arrays more than 32 deep"):
+        load_policy(path)
+    path.write_text(json.dumps({**record, "training": {"command": "[{" * 100_000}}))  # brackets in a string
+    assert load_policy(path)[1]["training"]["command"].startswith("[{[{")
+
+
 def test_the_round_gate_is_a_parallel_env_that_sends_everything_or_nothing(tmp_path):
     from pettingzoo.test import parallel_api_test
 
@@ -268,7 +323,7 @@ class _RunsCode:
 def test_training_checkpoints_never_run_code_on_resume(tmp_path):
     torch = pytest.importorskip("torch")
     from policies.safe_checkpoint import (UnsafeCheckpointError, load_training_state, refuse_pickled_checkpoint,
-                                          save_training_state, sign_checkpoint, verify_checkpoint)
+                                          refuse_pickled_rllib_checkpoint, save_training_state, tensors_only)
 
     state = {"policy": {"w": torch.arange(6.0).reshape(2, 3)}, "policy.optimizer": {"param_groups": [{"lr": 3e-4}]}}
     save_training_state(tmp_path / "checkpoint.pt", state, {"num_timesteps": 32, "n_updates": 4})
@@ -290,22 +345,27 @@ def test_training_checkpoints_never_run_code_on_resume(tmp_path):
     with pytest.raises(UnsafeCheckpointError, match="corrupt or truncated"):
         load_training_state(tmp_path / "truncated.pt")
 
-    # RLlib's folders restore by unpickling: only one this user's key signed, unchanged, is restored
-    folder, keys = tmp_path / "rllib", tmp_path / "keys"
-    (folder / "learner").mkdir(parents=True)
-    (folder / "learner" / "state.pkl").write_bytes(b"pickled state")
-    with pytest.raises(UnsafeCheckpointError, match="no signature"):
-        verify_checkpoint(folder, keys)
-    sign_checkpoint(folder, keys)
-    verify_checkpoint(folder, keys)
-    assert oct((keys / "checkpoint-signing.key").stat().st_mode & 0o777) == "0o600"
-    (folder / "learner" / "state.pkl").write_bytes(b"crafted pickle")
-    with pytest.raises(UnsafeCheckpointError, match="changed after it was written"):
-        verify_checkpoint(folder, keys)
-    (folder / "learner" / "state.pkl").write_bytes(b"pickled state")
-    (folder / "extra.pkl").write_bytes(b"added later")
-    with pytest.raises(UnsafeCheckpointError, match="changed after it was written"):
-        verify_checkpoint(folder, keys)
+    # RLlib's own checkpoint folders restore by unpickling: an older release's is refused, never read
+    (tmp_path / "checkpoint").mkdir()
+    (tmp_path / "checkpoint" / "algorithm_state.pkl").write_bytes(b"pickled state")
+    with pytest.raises(UnsafeCheckpointError, match="RLlib checkpoint folder.*could run code.*checkpoint.pt"):
+        refuse_pickled_rllib_checkpoint(tmp_path / "checkpoint")
+    # what RLlib hands over (NumPy arrays and scalars) is saved as tensors and numbers; any other object is refused
+    learner = {"optimizer": {"default": {"module_id": "shared", "state": {"state": {0: {"step": np.array(3.0)}},
+                                                                       "param_groups": [{"betas": (0.9, 0.999)}]}}}}
+    converted = tensors_only(learner)
+    assert torch.equal(converted["optimizer"]["default"]["state"]["state"][0]["step"], torch.tensor(3.0, dtype=torch.float64))
+    assert tensors_only({"lr": np.float32(0.5)}) == {"lr": 0.5}
+    with pytest.raises(ValueError, match=r"state\['callback'\] is a _RunsCode"):
+        tensors_only({"callback": _RunsCode(str(marker))})
+    # the temporary file is made new: a symlink planted under its name is replaced, its target left alone
+    victim = tmp_path / "victim.txt"
+    victim.write_text("keep me")
+    planted = tmp_path / f".checkpoint.pt.{os.getpid()}.tmp"
+    planted.symlink_to(victim)
+    save_training_state(tmp_path / "checkpoint.pt", state, {"num_timesteps": 1, "n_updates": 1})
+    assert victim.read_text() == "keep me" and not planted.exists()
+    assert load_training_state(tmp_path / "checkpoint.pt")[1] == {"num_timesteps": 1, "n_updates": 1}
 
 
 def test_a_training_folder_made_before_worlds_per_worker_still_resumes():

@@ -4,6 +4,7 @@ policy files."""
 from __future__ import annotations
 
 import json
+import pickle
 from types import SimpleNamespace
 
 import numpy as np
@@ -15,6 +16,7 @@ torch = pytest.importorskip("torch")
 from gymnasium import spaces  # noqa: E402
 
 from policies import make_policy  # noqa: E402
+from policies.safe_checkpoint import UnsafeCheckpointError, tensors_only  # noqa: E402
 from policies.observation import MAP_CHANNELS, comm_size  # noqa: E402
 
 
@@ -57,7 +59,7 @@ def test_the_rllib_module_exports_to_the_same_policy_and_draws_bernoulli_entries
         _module(actions=4)
 
 
-def test_one_rllib_iteration_on_two_env_runners_logs_exports_and_resumes(tmp_path):
+def test_one_rllib_iteration_on_two_env_runners_logs_exports_and_resumes(tmp_path, monkeypatch):
     from openmulti_env.runs.train import WorkerEnvs
     from policies.train import TrainConfig
     from policies.train_rllib import train_rllib
@@ -80,8 +82,30 @@ def test_one_rllib_iteration_on_two_env_runners_logs_exports_and_resumes(tmp_pat
     policy = make_policy(str(best), 2, seed=0)
     assert policy.record["training"]["backend"] == "rllib" and policy.record["training"]["env_steps"] == 24
 
+    # resuming rebuilds the algorithm and puts the checkpoint's tensors into it; pickles anywhere in the run folder
+    # (RLlib's own names, a symlinked folder) are never read
+    import policies.train_rllib as train_module
+
+    marker, restored = tmp_path / "ran", []
+    for name in ("algorithm_state.pkl", "learner_group/learner/state.pkl", "env_runner/state.pkl",
+                 "learner_group/learner/rl_module/shared/module_state.pkl", "elsewhere/class_and_ctor_args.pkl"):
+        (tmp_path / "run" / name).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / "run" / name).write_bytes(pickle.dumps(_RunsCode(str(marker))))
+    (tmp_path / "run" / "linked").symlink_to(tmp_path / "run" / "elsewhere", target_is_directory=True)
+    original = train_module._restore_checkpoint
+
+    def restore_and_compare(algo, path, state):
+        assert any(optimizer["state"]["state"] for optimizer in state["optimizer"].values())  # Adam's moments
+        original(algo, path, state)
+        now = {key: tensors_only(value) for key, value in algo.get_state(
+            components=list(train_module.LEARNER_STATE))["learner_group"]["learner"].items() if key in state}
+        _assert_same(now, state)
+        restored.append(path)
+
+    monkeypatch.setattr(train_module, "_restore_checkpoint", restore_and_compare)
     train_rllib(factory, TrainConfig(**{**config.__dict__, "total_env_steps": 48}), tmp_path / "run",
                 {"command": "test"}, progress=False)
+    assert restored == [tmp_path / "run" / "checkpoint.pt"] and not marker.exists()
     latest = json.loads((tmp_path / "run" / "latest.json").read_text())["training"]
     assert latest["env_steps"] == 48 and latest["episodes"] == 4  # resumed at 24 (with new episodes)
     steps = [int(r.split(",")[0]) for r in (tmp_path / "run" / "log.csv").read_text().splitlines()[1:]]
@@ -90,19 +114,49 @@ def test_one_rllib_iteration_on_two_env_runners_logs_exports_and_resumes(tmp_pat
         train_rllib(factory, TrainConfig(**{**config.__dict__, "learning_rate": 1.0}), tmp_path / "run", {},
                     progress=False)
 
+    # a crafted checkpoint.pt, or an older release's pickled checkpoint folder, is refused before an env is built
+    torch.save({"format": "openmulti.training-checkpoint", "version": 1, "counters": {"env_steps": 48},
+                "state": _RunsCode(str(marker))}, tmp_path / "run" / "checkpoint.pt")
+    later = TrainConfig(**{**config.__dict__, "total_env_steps": 72})
+    with pytest.raises(UnsafeCheckpointError, match="objects other than tensors.*could run code"):
+        train_rllib(_no_env, later, tmp_path / "run", {"command": "test"}, progress=False)
+    (tmp_path / "run" / "checkpoint").mkdir()
+    (tmp_path / "run" / "checkpoint" / "algorithm_state.pkl").write_bytes(pickle.dumps(_RunsCode(str(marker))))
+    with pytest.raises(UnsafeCheckpointError, match="RLlib checkpoint folder.*not read.*checkpoint.pt"):
+        train_rllib(_no_env, later, tmp_path / "run", {"command": "test"}, progress=False)
+    assert not marker.exists()
 
-def test_a_checkpoint_swap_cut_by_a_kill_is_recovered(tmp_path):
-    from policies.train_rllib import _recover_checkpoint
 
-    path = tmp_path / "checkpoint"
-    (tmp_path / "checkpoint.old").mkdir()
-    (tmp_path / "checkpoint.old" / "state").write_text("old")
-    (tmp_path / "checkpoint.tmp").mkdir()  # killed between moving the old one aside and moving the new one in
-    _recover_checkpoint(path)
-    assert (path / "state").read_text() == "old" and not (tmp_path / "checkpoint.tmp").exists()
-    (tmp_path / "checkpoint.old").mkdir()  # killed while deleting the old one after a finished swap
-    _recover_checkpoint(path)
-    assert (path / "state").read_text() == "old" and not (tmp_path / "checkpoint.old").exists()
+class _RunsCode:
+    """A crafted pickle's payload: unpickling it touches a marker file."""
+
+    def __init__(self, marker: str):
+        self.marker = marker
+
+    def __reduce__(self):
+        from pathlib import Path
+
+        return (Path.touch, (Path(self.marker),))
+
+
+def _no_env(index: int):
+    raise AssertionError("no env may be built before the checkpoint is refused")
+
+
+def _assert_same(a, b) -> None:
+    """Nested dicts / lists of tensors and numbers equal, entry by entry."""
+    if isinstance(a, dict):
+        assert set(a) == set(b)
+        for key in a:
+            _assert_same(a[key], b[key])
+    elif isinstance(a, (list, tuple)):
+        assert len(a) == len(b)
+        for x, y in zip(a, b):
+            _assert_same(x, y)
+    elif isinstance(a, torch.Tensor):
+        assert torch.equal(a, b)
+    else:
+        assert a == b
 
 
 def test_train_refuses_ray_without_the_rllib_backend():
