@@ -359,3 +359,38 @@ def test_scannet_depth_size_mismatch_is_reported(tmp_path):
     ds = load_scannet(tmp_path)
     with pytest.raises(DatasetError, match=re.escape(str(tmp_path / "depth" / "5.png"))):
         ds[5]
+
+
+def save_float_depth(path, depth):
+    """A float depth image (TIFF) under the PNG name the layout expects: Pillow reads images by content."""
+    Image.fromarray(depth.astype(np.float32)).save(path, format="TIFF")
+
+
+@pytest.mark.parametrize("fill", [np.nan, np.inf, -2.0, 0.0])
+def test_a_depth_frame_without_a_valid_pixel_is_an_empty_frame_with_a_warning(tmp_path, fill):
+    write_replica(tmp_path)
+    save_float_depth(tmp_path / "depth" / "depth_2.png", np.full((H, W), fill))
+    ds = load_replica(tmp_path, intrinsics=TINY_CAM)
+    with pytest.warns(DatasetWarning, match=m(str(tmp_path / "depth" / "depth_2.png")) + ": no valid depth pixel.*"
+                      "kept as an empty frame") as caught:
+        frame = ds[2]
+    assert len(caught) == 1 and not frame.depth.any() and frame.backproject().shape == (0, 3)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        ds[1]  # a frame with depth: no warning
+
+
+def test_nan_inf_and_negative_depth_pixels_become_missing(tmp_path):
+    write_replica(tmp_path)
+    depth = np.full((H, W), np.nan)
+    depth[: H // 2] = 2500.0  # 2.5 m at the default 1000 units per metre
+    depth[0, :3] = np.inf, -np.inf, -7.0
+    save_float_depth(tmp_path / "depth" / "depth_2.png", depth)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # also no numpy RuntimeWarning
+        frame = load_replica(tmp_path, intrinsics=TINY_CAM)[2]
+    assert np.isfinite(frame.depth).all() and (frame.depth >= 0).all()
+    np.testing.assert_allclose(frame.depth[frame.depth > 0], 2.5)
+    assert (frame.depth > 0).sum() == H // 2 * W - 3
+    points = frame.backproject()
+    assert len(points) == H // 2 * W - 3 and np.isfinite(points).all()

@@ -125,7 +125,7 @@ def test_bad_construction_is_refused_clearly(cache):
     for bad, message in ((dict(comm_cost_per_mb=float("nan")), "env.comm_cost_per_mb must be a finite number"),
                          (dict(budget_penalty=float("inf")), "env.budget_penalty must be a finite number"),
                          (dict(comm_budget_mb=float("nan")), "channel.budget_mb must be >= 0"),
-                         (dict(threads=0), "run.threads must be >= 1"),
+                         (dict(threads=0), "run.threads must be None or an integer >= 1"),
                          (dict(changed_only=-1.0), "changed_only must be None or a finite number >= 0"),
                          (dict(device="tpu"), "run.device: 'tpu' is not a device")):
         with pytest.raises(ValueError, match=message):

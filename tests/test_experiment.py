@@ -43,7 +43,7 @@ def test_bad_options_name_the_field_and_the_nearest_valid_ones():
         experiment("tiny", keyframe_every="often")
     with pytest.raises(ConfigError, match="oracle"):
         experiment("tiny", alignment="oracle")
-    with pytest.raises(ConfigError, match="world.num_agents must be between 1 and 8"):
+    with pytest.raises(ConfigError, match="world.num_agents must be an integer >= 1 and <= 8, got 9"):
         experiment("tiny", agents=9)
     with pytest.raises(ConfigError, match="policy 'budget' needs a budget"):
         experiment("tiny", policy="budget")

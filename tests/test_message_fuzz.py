@@ -6,17 +6,23 @@ from __future__ import annotations
 import copy
 import json
 import math
+import re
 import struct
+import tracemalloc
 import warnings
+import zlib
+from dataclasses import replace
 
 import numpy as np
 import pytest
 
 from mapping.model.banks import param_counts
 from mapping.model.agent_config import MappingConfig
-from mapping.model.observed import SURFACE, ObservedSpace
+from mapping.model.observed import GRID_HEADER, SURFACE, ObservedSpace, ObservedSpaceError, lattice_cell
+from mapping.model.observed_map import ObservedMaps
 from mapping.team import (Channel, InstancePayload, MessageError, MessageRules, ParameterMessage, RayMessage,
                           from_bytes, to_bytes)
+from mapping.team.message_size import size_and_cap
 from mapping.team.messages import DegreeMessage, PointCloudMessage, replay_pixels
 
 COUNTS = param_counts(MappingConfig())
@@ -217,3 +223,135 @@ def test_ray_messages_with_non_rigid_or_huge_poses_are_refused(pose_change, erro
     message = RayMessage(0, 1, 0, pose[None].astype(np.float32), (100.0, 100.0, 80.0, 60.0, 160, 120), 7, 4)
     with pytest.raises(MessageError, match=error):
         from_bytes(to_bytes(message), RULES)
+
+
+# ---- messages bounded as a whole: a cap on what a message decodes to, checked before anything inflates ----
+
+class _Announced:
+    """Stands in for an observed space on the sending side: ``to_bytes`` returns the given grid bytes."""
+
+    def __init__(self, data: bytes):
+        self.data = data
+
+    def to_bytes(self) -> bytes:
+        return self.data
+
+
+def _grid_bytes(origin, shape, cells: bytes | None = None, cell_m: float = 0.05) -> bytes:
+    """A grid's wire bytes: its header, then ``cells`` (default: every cell unknown, 2 bits a cell) compressed."""
+    packed = bytes(-(-math.prod(shape) // 4)) if cells is None else cells
+    return GRID_HEADER.pack(cell_m, *origin, *shape) + zlib.compress(packed, 6)
+
+
+def _with_grids(grids: list[bytes]) -> bytes:
+    """A valid parameter message (boxes [0, 1]^3) whose instances carry ``grids`` as their observed spaces."""
+    payloads = [_payload(3 + k) for k in range(len(grids))]
+    for payload, grid in zip(payloads, grids):
+        payload.observed = _Announced(grid)
+    return to_bytes(ParameterMessage(0, 1, 0, payloads))
+
+
+def _refused_within(data: bytes, rules: MessageRules, peak_mb: float) -> MessageError:
+    """The MessageError ``data`` raises, asserting that decoding it never held more than ``peak_mb`` MB."""
+    tracemalloc.start()
+    try:
+        with pytest.raises(MessageError) as refused:
+            from_bytes(data, rules)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < peak_mb * 1e6, f"{peak / 1e6:.1f} MB held while refusing"
+    return refused.value
+
+
+def test_thirty_two_grids_past_their_boxes_are_refused_before_one_is_inflated():
+    empty = _grid_bytes((0, 0, 0), (256, 256, 256))  # 2^24 cells (16 MB decoded) in 4 kB, over boxes of 21^3 cells
+    data = _with_grids([empty] * 32)
+    assert len(data) < 2_000_000
+    error = _refused_within(data, RULES, peak_mb=8)  # each grid would have been 16 MB, 537 MB in all
+    assert re.search(r"over its cap: \d+\.observed cells decodes to 16777216 bytes, 16765049 over its share of "
+                     r"12167 \(the cells its box spans", str(error))
+    assert "for 32 instances" in str(error)
+    with pytest.warns(UserWarning, match="refused: message over its cap"):
+        assert Channel(3, rules=RULES).transmit_bytes(0, 1, "params", data).status == "dropped"
+
+
+def test_thirty_two_grids_as_large_as_their_boxes_are_refused_by_the_message_wide_cell_limit():
+    """The review's message: 32 instances whose 12.7 m boxes honestly span 2^24 cells each (512 MB decoded)."""
+    empty = _grid_bytes((-1, -1, -1), (256, 256, 256))
+    payloads = [_payload(3 + k) for k in range(32)]
+    for payload in payloads:
+        payload.observed, payload.bound_hi = _Announced(empty), np.full(3, 12.7, np.float32)
+    data = to_bytes(ParameterMessage(0, 1, 0, payloads))
+    error = _refused_within(data, RULES, peak_mb=8)
+    assert f"announce {32 * 256 ** 3} cells in all, over the {1 << 26} one message may carry" in str(error)
+    assert from_bytes(_with_grids([_grid_bytes((-1, -1, -1), (23, 23, 23))] * 32), RULES)  # small boxes pass
+
+
+def test_arrays_that_share_the_bodys_bytes_are_refused():
+    header, body = _split(_valid_messages()[0])
+    name, dtype, shape, offset = header["arrays"][0]
+    header["arrays"] += [[f"alias{k}", dtype, shape, offset] for k in range(1000)]  # 1000 views of one array
+    with pytest.raises(MessageError, match="arrays of \\d+ bytes in all, the body holds \\d+"):
+        from_bytes(_join(header, body), RULES)
+
+
+@pytest.mark.parametrize("corner", [-2**63, 2**63 - 1, -(2**40) - 1])
+def test_grid_origins_beyond_the_lattice_are_refused_without_overflow(corner):
+    data = _with_grids([_grid_bytes((corner, 0, 0), (21, 21, 21))])
+    with pytest.raises(MessageError, match=r"0\.observed: observed space: origin \[-?\d+, 0, 0\] out of bounds"):
+        from_bytes(data, RULES)
+    with pytest.raises(ObservedSpaceError, match="origin"):
+        ObservedSpace.from_bytes(_grid_bytes((corner, 0, 0), (21, 21, 21)))
+    with pytest.warns(UserWarning, match="refused: array 0.observed"):
+        assert Channel(3, rules=RULES).transmit_bytes(0, 1, "params", data).status == "dropped"
+
+
+@pytest.mark.parametrize("inflated, error", [
+    (2_000_000, r"0\.observed: observed space: 2317 bytes of cells \(cut\), expected 2316"),  # fits its share
+    (16_000_000, r"0\.observed decodes to \d+ bytes, \d+ over its share of 3165 \(12167 cells, packed and compr"),
+])
+def test_a_compressed_grid_that_would_inflate_past_its_cells_is_refused_unexpanded(inflated, error):
+    data = _with_grids([_grid_bytes((0, 0, 0), (21, 21, 21), cells=bytes(inflated))])
+    assert re.search(error, str(_refused_within(data, RULES, peak_mb=4)))
+
+
+def _largest_grid(lo: float = 0.0, hi: float = 1.0, extra: int = 0) -> ObservedSpace:
+    """The largest grid the box [lo, hi]^3 allows (one cell of slack a side), ``extra`` cells longer on x."""
+    first, last = lattice_cell(lo, 0.05) - 1, lattice_cell(hi, 0.05) + 1
+    n = last - first + 1
+    space = ObservedSpace(0.05, np.full(3, first, np.int64), np.zeros((n + extra, n, n), np.uint8))
+    space.mark(np.array([[0.5, 0.5, 0.5]]), SURFACE)
+    return space
+
+
+def test_a_message_just_under_its_cap_is_accepted_and_one_slab_more_is_refused():
+    rules = replace(RULES, max_cloud_points=40)
+    wide = _payload(3)  # every part at its share: float64 network and feature, 40 points, the largest grid
+    wide.params, wide.caption_feature = wide.params.astype(np.float64), wide.caption_feature.astype(np.float64)
+    wide.cloud, wide.observed = np.zeros((40, 3), np.float32), _largest_grid()
+    data = to_bytes(ParameterMessage(0, 1, 0, [wide]))
+    used, cap = size_and_cap(data, rules)
+    grid_share = GRID_HEADER.size + 3042 + 3 + 64  # 23^3 cells packed four a byte, with zlib's framing
+    assert cap - used == 9 * 4 + 40 * 3 * 4 + grid_share - len(wide.observed.to_bytes())  # float32 box and cloud
+    assert from_bytes(data, rules).instances[0].observed.states.shape == (23, 23, 23)
+    wide.observed = _largest_grid(extra=1)
+    with pytest.raises(MessageError, match=r"0\.observed cells decodes to 12696 bytes, 529 over its share of 12167"):
+        from_bytes(to_bytes(ParameterMessage(0, 1, 0, [wide])), rules)
+    wide.observed, wide.cloud = _largest_grid(), np.zeros((81, 3), np.float32)  # 972 bytes: 81 float64 points
+    with pytest.raises(MessageError, match=r"0\.cloud decodes to 972 bytes, 12 over its share of 960 \(a cloud of "
+                                           r"at most 40 points\)"):
+        from_bytes(to_bytes(ParameterMessage(0, 1, 0, [wide])), rules)
+
+
+def test_a_peers_grid_that_cannot_join_the_own_one_is_left_out_with_a_warning():
+    far = _payload(3)
+    far.bound_lo, far.bound_hi = np.full(3, 10_000.0, np.float32), np.full(3, 10_001.0, np.float32)
+    far.observed = _largest_grid(10_000.0, 10_001.0)
+    arrived = from_bytes(to_bytes(ParameterMessage(0, 1, 0, [far])), RULES).instances[0].observed  # a valid grid
+    maps = ObservedMaps(0.05)
+    maps.add(3, _observed())
+    before = maps.get(3).copy()
+    with pytest.warns(UserWarning, match="observed space of instance 3 left out: .* exceeds 16777216"):
+        maps.add(3, arrived)  # together 200,000 x 23 x 23 cells: no plain ValueError from an arrived message
+    assert np.array_equal(maps.get(3).states, before.states) and np.array_equal(maps.get(3).origin, before.origin)

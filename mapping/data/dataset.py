@@ -10,6 +10,7 @@ few hundred kilobytes until it is used. This module imports no layout module, so
 from __future__ import annotations
 
 import math
+import warnings
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -17,7 +18,7 @@ from typing import TypeVar, overload
 
 import numpy as np
 
-from mapping.data.files import DatasetError, read_depth, read_labels, read_rgb
+from mapping.data.files import DatasetError, DatasetWarning, read_depth, read_labels, read_rgb
 from mapping.data.frame import AgentSequence, Frame, Intrinsics, split_contiguous
 
 T = TypeVar("T")
@@ -48,8 +49,19 @@ class ReadSpec:
         size = (self.intrinsics.width, self.intrinsics.height)
         rgb = read_rgb(f.rgb, size, resize=self.resize_rgb)
         depth = read_depth(f.depth, size, self.depth_scale)
+        warn_if_no_depth(depth, f.depth)
         inst = None if f.instance is None else read_labels(f.instance, size, resize=self.resize_instance)
         return Frame(rgb, depth, f.pose.copy(), self.intrinsics, inst, timestamp=float(f.index), index=f.index)
+
+
+def warn_if_no_depth(depth: np.ndarray, path: Path) -> None:
+    """Warn (``DatasetWarning`` naming the file) when a depth frame has no valid pixel. ``read_depth`` has made
+    NaN, infinite and negative readings 0 (missing), so a frame of only those reads like an all-zero one (a
+    sensor dropout): it keeps its place, pose and colour and is mapped as an empty frame, nothing fused from it.
+    Refusing it would stop a long run at one bad frame, and a lazy sequence cannot drop it without renumbering."""
+    if not depth.any():
+        warnings.warn(f"{path}: no valid depth pixel (every reading is zero, negative, NaN or infinite); the frame "
+                      "is kept as an empty frame: nothing of it is mapped", DatasetWarning, stacklevel=3)
 
 
 class LazyFrames(Sequence[Frame]):

@@ -168,12 +168,12 @@ def intrinsics_for_images(value: "Intrinsics | Mapping[str, float] | Sequence[fl
 def read_cam_params(root: Path) -> tuple[dict | None, Path | None]:
     """The ``camera`` block of a Replica ``cam_params.json`` (w, h, fx, fy, cx, cy, scale) in ``root``
     or its parent (NICE-SLAM keeps one for all scenes), or (None, None) when there is none."""
-    import json  # noqa: PLC0415
+    from mapping.safe_parse import load_json  # noqa: PLC0415  (bounded depth and size, no duplicated keys)
 
     for path in (root / "cam_params.json", root.parent / "cam_params.json"):
         if path.is_file():
             try:
-                cam = json.loads(path.read_text())["camera"]
+                cam = load_json(path)["camera"]
                 return {k: float(cam[k]) for k in ("w", "h", "fx", "fy", "cx", "cy")} | (
                     {"scale": float(cam["scale"])} if "scale" in cam else {}), path
             except (OSError, ValueError, KeyError, TypeError) as e:
@@ -216,10 +216,12 @@ def read_rgb(path: Path, size: tuple[int, int], resize: bool = False) -> np.ndar
 
 
 def read_depth(path: Path, size: tuple[int, int], scale: float) -> np.ndarray:
-    """(H, W) float32 metres from a 16-bit depth PNG storing ``metres * scale``; 0 stays 0 (missing)."""
+    """(H, W) float32 metres from a 16-bit depth PNG storing ``metres * scale``; 0 stays 0 (missing), and so do
+    NaN, infinite and negative readings of a float image (and values that overflow float32): no NaN goes on."""
     im = _open(path, _DEPTH_MODES, "depth")
     _check_size(im, path, size, "depth")
-    depth = np.asarray(im).astype(np.float32) / np.float32(scale)
+    with np.errstate(over="ignore", invalid="ignore"):  # what overflows becomes inf, then 0 below
+        depth = np.asarray(im).astype(np.float32) / np.float32(scale)
     depth[~np.isfinite(depth) | (depth < 0)] = 0.0
     return depth
 

@@ -14,10 +14,10 @@ These names become the instances' captions and the vocabulary of zero-shot label
 from __future__ import annotations
 
 import csv
-import json
 from pathlib import Path
 
 from mapping.data.files import DatasetError
+from mapping.safe_parse import ParseError, load_json
 
 REPLICA_LABEL_FILE = "info_semantic.json"
 SCANNET_LABEL_TABLE = "scannetv2-labels.combined.tsv"
@@ -25,8 +25,8 @@ SCANNET_LABEL_TABLE = "scannetv2-labels.combined.tsv"
 
 def _read_json(path: Path) -> dict:
     try:
-        data = json.loads(path.read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
+        data = load_json(path)
+    except (OSError, ParseError) as e:
         raise DatasetError(f"{path}: cannot read label file ({e})") from None
     if not isinstance(data, dict):
         raise DatasetError(f"{path}: label file must hold a JSON object")

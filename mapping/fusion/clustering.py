@@ -20,10 +20,12 @@ threshold with a perfect 2D IoU.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import networkx as nx
 import numpy as np
+
+from mapping.config_fields import bounded
 
 _ROW_BLOCK = 256  # rows per block of the (n, n) box-overlap test: bounds memory at ~n * 256 booleans
 _PAIR_BLOCK = 8192  # pairs per block of the projection term
@@ -33,24 +35,24 @@ _PAIR_BLOCK = 8192  # pairs per block of the projection term
 class CoarseConfig:
     """Weights and threshold of the coarse edge score (OpenObj's values)."""
 
-    w_box3d: float = 0.30
+    w_box3d: float = field(default=0.30, metadata=bounded(0, 100))
     """Weight of the 3D box overlap."""
-    w_caption: float = 0.20
+    w_caption: float = field(default=0.20, metadata=bounded(0, 100))
     """Weight of the caption-feature cosine."""
-    w_visual: float = 0.30
+    w_visual: float = field(default=0.30, metadata=bounded(0, 100))
     """Weight of the visual-feature cosine (dropped, with threshold rescaling, when absent)."""
-    w_colour: float = 0.20
+    w_colour: float = field(default=0.20, metadata=bounded(0, 100))
     """Weight of the colour-histogram cosine."""
-    w_box2d: float = 0.60
+    w_box2d: float = field(default=0.60, metadata=bounded(0, 100))
     """Weight of the IoU between a mask's 2D box and the other mask's points projected into its frame."""
-    threshold: float = 1.0
+    threshold: float = field(default=1.0, metadata=bounded(0, 100))
     """Edge when the score reaches this (with all five terms present)."""
     box_overlap: str = "smaller"
     """3D box overlap: "smaller" (intersection over the smaller box, as OpenObj's code computes its
     "IoU": a partial view inside the whole scores high) or "iou" (plain IoU)."""
-    box_padding_m: float = 0.02
+    box_padding_m: float = field(default=0.02, metadata=bounded(0, 10))
     """Each 3D box grows by this on every side before the overlap, so flat walls and floors have volume."""
-    candidate_margin_m: float = 0.05
+    candidate_margin_m: float = field(default=0.05, metadata=bounded(0, 10))
     """Pairs are scored only when their boxes, grown by this, intersect."""
     communities: str = "louvain"
     """"louvain" (networkx, seeded) or "components" (connected components)."""

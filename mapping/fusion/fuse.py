@@ -18,6 +18,7 @@ import numpy as np
 from scipy import ndimage
 
 from mapping.alignment.confidence import instance_confidence, label_confidences
+from mapping.config_fields import bounded
 from mapping.data.frame import Frame
 from mapping.fusion.clustering import CoarseConfig, MaskSet, coarse_clusters, unit_rows
 from mapping.fusion.merge import FineConfig, fine_merge, voxel_downsample
@@ -32,25 +33,25 @@ class FusionConfig:
     """Coarse phase: edge weights, threshold, communities."""
     fine: FineConfig = field(default_factory=FineConfig)
     """Fine phase: overlap, caption and colour thresholds."""
-    voxel_size_m: float = 0.01
+    voxel_size_m: float = field(default=0.01, metadata=bounded(0, 10, low_open=True))
     """Voxel of the per-mask and per-instance point clouds."""
-    pixel_stride: int = 2
+    pixel_stride: int = field(default=2, metadata=bounded(1, 1024))
     """Back-project every n-th pixel in both directions (2 = a quarter of the points; the clouds of
     many frames fill in, and at 320 x 240 one frame still gives a point every ~2.5 cm at 2 m)."""
-    min_mask_pixels: int = 100
+    min_mask_pixels: int = field(default=100, metadata=bounded(0, 100_000_000))
     """Masks with fewer pixels are dropped (OpenObj); they get no local id."""
-    min_mask_points: int = 10
+    min_mask_points: int = field(default=10, metadata=bounded(0, 100_000_000))
     """Masks with fewer valid-depth voxels are dropped too."""
-    colour_bins: int = 32
+    colour_bins: int = field(default=32, metadata=bounded(1, 256))
     """Histogram bins per RGB channel (OpenObj: 32)."""
-    projection_points: int = 64
+    projection_points: int = field(default=64, metadata=bounded(1, 100_000))
     """Points per mask projected into other frames for the 2D box term."""
-    border_margin: float = 0.1
+    border_margin: float = field(default=0.1, metadata=bounded(0, 0.5, high_open=True))
     """Border band of eq. 1's central region, as a share of the image width / height."""
-    max_points: int = 100_000
+    max_points: int = field(default=100_000, metadata=bounded(1, 10_000_000))
     """Cap on an instance's points: beyond it the voxel grows until the cloud fits (uniform density:
     a random subset would thin large surfaces unevenly and break the alignment's overlap test)."""
-    seed: int = 0
+    seed: int = field(default=0, metadata=bounded(0, 2**32 - 1))
     """Seed of Louvain."""
 
     def __post_init__(self) -> None:

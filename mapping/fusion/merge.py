@@ -17,11 +17,12 @@ cluster joins only its best larger partner, and only if that partner stays put (
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.spatial import cKDTree
 
+from mapping.config_fields import bounded
 from mapping.fusion.clustering import MaskSet, candidate_pairs, unit_rows
 from mapping.pointcloud import voxel_downsample
 
@@ -30,21 +31,21 @@ from mapping.pointcloud import voxel_downsample
 class FineConfig:
     """Thresholds of the fine merge (OpenObj's values)."""
 
-    overlap_distance_m: float = 0.05
+    overlap_distance_m: float = field(default=0.05, metadata=bounded(0, 10))
     """A point overlaps when the other cloud has a point within this distance."""
-    overlap: float = 0.6
+    overlap: float = field(default=0.6, metadata=bounded(0, 1))
     """Overlap needed together with the caption and colour tests."""
-    caption_similarity: float = 0.3
+    caption_similarity: float = field(default=0.3, metadata=bounded(-1, 1))
     """Caption-feature cosine needed (strictly above)."""
-    colour_similarity: float = 0.6
+    colour_similarity: float = field(default=0.6, metadata=bounded(-1, 1))
     """Colour-histogram cosine needed (strictly above)."""
-    overlap_alone: float = 0.9
+    overlap_alone: float = field(default=0.9, metadata=bounded(0, 1))
     """Overlap above which clusters merge whatever their colours (see ``subset_caption_similarity``)."""
-    subset_caption_similarity: float = 0.5
+    subset_caption_similarity: float = field(default=0.5, metadata=bounded(-1, 1))
     """Caption cosine that the overlap-alone rule needs unless BOTH shares pass (-1 = OpenObj: none).
     Anything lying on a surface (a rug on the floor, a picture on a wall) lies wholly within 0.05 m of
     it and would otherwise merge into it whatever it is."""
-    max_passes: int = 50
+    max_passes: int = field(default=50, metadata=bounded(1, 100_000))
     """Safety bound on the merge passes (a pass that merges nothing ends the loop earlier)."""
 
 

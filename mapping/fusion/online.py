@@ -23,6 +23,7 @@ from typing import Sequence
 import numpy as np
 from scipy.spatial import cKDTree
 
+from mapping.config_fields import bounded
 from mapping.data.frame import Frame
 from mapping.fusion.fuse import FusionConfig, fuse_frames
 from mapping.pointcloud import voxel_downsample
@@ -35,17 +36,17 @@ class OnlineFusionConfig:
 
     fusion: FusionConfig = field(default_factory=FusionConfig)
     """The per-round fusion (coarse + fine phases)."""
-    overlap_radius_m: float = 0.05
+    overlap_radius_m: float = field(default=0.05, metadata=bounded(0, 10, low_open=True))
     """A point overlaps an instance when one of its points is this close (OpenObj: 5 cm)."""
-    overlap_similar: float = 0.6
+    overlap_similar: float = field(default=0.6, metadata=bounded(0, 1))
     """Associate when the overlap exceeds this and the captions are similar ..."""
-    caption_similarity: float = 0.3
+    caption_similarity: float = field(default=0.3, metadata=bounded(-1, 1))
     """... (cosine above this) ..."""
-    overlap_any: float = 0.9
+    overlap_any: float = field(default=0.9, metadata=bounded(0, 1))
     """... or when the overlap exceeds this whatever the captions say."""
-    voxel_size_m: float = 0.01
+    voxel_size_m: float = field(default=0.01, metadata=bounded(0, 10, low_open=True))
     """Voxel of the persistent clouds."""
-    max_points: int = 60_000
+    max_points: int = field(default=60_000, metadata=bounded(1, 10_000_000))
     """Cap on a persistent cloud (the voxel coarsens beyond it)."""
 
 

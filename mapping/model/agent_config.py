@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
 
-from mapping.config_fields import NEUTRAL_DEFAULT
+from mapping.config_fields import NEUTRAL_DEFAULT, bounded, lengths
 from mapping.model.losses import DataLossWeights
 from mapping.model.render import SamplerConfig
 from mapping.model.sdf_loss import SdfConfig
@@ -19,16 +19,16 @@ FREE_SPACE_RAYS = ("box2d", "crossing")
 class MappingConfig:
     """How one agent maps (vMAP's values unless said otherwise)."""
 
-    keyframe_every: int = 5
+    keyframe_every: int = field(default=5, metadata=bounded(1, 10_000))
     """Every k-th frame becomes a keyframe (the first always does)."""
-    iterations_per_keyframe: int = 20
+    iterations_per_keyframe: int = field(default=20, metadata=bounded(0, 10_000))
     """Optimisation steps after each keyframe (vMAP: 20 per frame)."""
-    rays_per_object: int = 120
+    rays_per_object: int = field(default=120, metadata=bounded(1, 65_536))
     """Rays per object instance per step (vMAP: 120)."""
-    rays_per_structure: int = 300
+    rays_per_structure: int = field(default=300, metadata=bounded(1, 65_536))
     """Rays per wall / floor / ceiling instance per step (vMAP's background uses 1200 on a GPU; with
     the 128-wide network that alone is ~30 GFLOP a step, too slow for a 2-core CPU)."""
-    own_ray_fraction: float = 0.8
+    own_ray_fraction: float = field(default=0.8, metadata=bounded(0, 1))
     """Share of an instance's rays on its own pixels; the rest on other surfaces in its 2D box."""
     free_space_rays: str = field(default="box2d", metadata=NEUTRAL_DEFAULT)
     """Where an instance's free-space rays (the ``1 - own_ray_fraction`` share) come from: ``box2d``, other
@@ -38,48 +38,49 @@ class MappingConfig:
     """Samples per ray (vMAP: 1 stratified + 9 around the surface), inside each instance's box."""
     loss_weights: DataLossWeights = field(default_factory=DataLossWeights)
     """lambda_1..3 of eq. 11 (vMAP: occupancy 10, depth 1, colour 5)."""
-    structure_width: int = 64
+    structure_width: int = field(default=64, metadata=bounded(1, 4096))
     """Hidden width of wall / floor / ceiling networks (vMAP's background: 128 on a GPU; planes need
     less, and at 128 they take 90% of a CPU step)."""
-    structure_encoding_scale: float = 2.0
+    structure_encoding_scale: float = field(default=2.0, metadata=bounded(0, 1000, low_open=True))
     """``FieldConfig.encoding_scale`` of the structure bank. A global map's one network lives in it
     with the scene box as its frame, where 2 leaves its finest geometry band a period of about 1.3 m
     (``mapping.team.global_map.GLOBAL_ENCODING_SCALE`` sets a finer one for it)."""
-    lr: float = 1e-3
+    lr: float = field(default=1e-3, metadata=bounded(0, 10, low_open=True))
     """AdamW learning rate."""
-    object_voxel_m: float = 0.01
+    object_voxel_m: float = field(default=0.01, metadata=bounded(0.001, 1))
     """Marching-cubes voxel for objects."""
-    structure_voxel_m: float = 0.02
+    structure_voxel_m: float = field(default=0.02, metadata=bounded(0.001, 1))
     """Marching-cubes voxel for walls, floor and ceiling."""
-    max_mesh_resolution: int = 256
+    max_mesh_resolution: int = field(default=256, metadata=bounded(2, 2048))
     """Grid cap per axis (vMAP)."""
-    keyframe_capacity: int = 100
+    keyframe_capacity: int = field(default=100, metadata=bounded(1, 100_000))
     """Keyframes held at once (memory bound; ``fast`` and ``full`` runs stay under it)."""
     keyframe_policy: str = "reservoir"
     """Which keyframe a new one replaces when the buffer is full: ``reservoir`` or ``window``."""
-    frame_limit: float = 2.0
+    frame_limit: float = field(default=2.0, metadata=bounded(0, 100, low_open=True))
     """An instance moves to a larger frame (refit by distillation) when its box reaches this far out
     of its frame's cube (``InstanceFieldBank.frame_coverage``)."""
-    refit_steps: int = 60
+    refit_steps: int = field(default=60, metadata=bounded(0, 100_000))
     """Distillation steps of such a move (batched over the instances that move together)."""
-    global_frame: tuple[float, float, float, float] | None = None
+    global_frame: tuple[float, float, float, float] | None = field(
+        default=None, metadata=lengths(4, 4, bounded(-1e4, 1e4)))
     """(centre x, y, z, half-size) given to every new instance instead of a frame from its first box:
     the scene box of a global map (``mapping.team.global_map``), fixed so that it is never refit."""
     structure_sdf: SdfConfig | None = field(default=None, metadata=NEUTRAL_DEFAULT)
     """Make the structure bank MACIM's scene SDF network, trained with its losses (``mapping.model.sdf_field``,
     ``mapping.model.sdf_loss``): the published form of the global baselines. None: vMAP's occupancy networks."""
-    iterations_first_keyframe: int = field(default=0, metadata=NEUTRAL_DEFAULT)
+    iterations_first_keyframe: int = field(default=0, metadata=bounded(0, 100_000, also=NEUTRAL_DEFAULT))
     """Extra local iterations in the round of an agent's first keyframe (MACIM: 200 on its first frame)."""
-    iterations_after_stream: int = field(default=0, metadata=NEUTRAL_DEFAULT)
+    iterations_after_stream: int = field(default=0, metadata=bounded(0, 100_000, also=NEUTRAL_DEFAULT))
     """Local iterations after an agent's last frame, on top of ``TeamConfig.min_local_steps`` (MACIM: 200)."""
-    observed_cell_m: float | None = 0.025
+    observed_cell_m: float | None = field(default=0.025, metadata=bounded(0, 1, low_open=True))
     """Cell of each instance's observed space (``mapping.model.observed``), sent with its parameters: meshes,
     rendered views, the env's observations and its reward hold surface only near cells where some keyframe's
     depth fell, i.e. within one to two cells of it. 2.5 cm keeps that inside the depth check's 5 cm (5 cm cells
     left room0 `demo` at 7.7 % of pixels off, 2.5 cm at 5.0 %; docs/observed_space.md). None: none kept, the
     networks drawn wherever they say (the tables recorded before issue 44; a global map keeps none:
     ``TeamConfig.global_map``)."""
-    observed_ray_stride: int = 16
+    observed_ray_stride: int = field(default=16, metadata=bounded(1, 65_536))
     """Every n-th valid pixel of a keyframe marks its ray free in each instance box it crosses (with every
     4th pixel of the instance's own)."""
 

@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 import torch
 from torch import Tensor
 
-from mapping.config_fields import NEUTRAL_DEFAULT
+from mapping.config_fields import NEUTRAL_DEFAULT, bounded
 from mapping.model.render import RenderedRays
 
 DEPTH_UNCERTAINTY_EPS = 1e-4
@@ -72,15 +72,15 @@ def colour_loss(rendered_colour: Tensor, rgb: Tensor, instance_mask: Tensor) -> 
 class DataLossWeights:
     """lambda_1..3 of eq. 11 (vMAP's values)."""
 
-    occupancy: float = 10.0
+    occupancy: float = field(default=10.0, metadata=bounded(0, 1e6))
     """lambda_1 (vMAP: opacity x10)."""
-    depth: float = 1.0
+    depth: float = field(default=1.0, metadata=bounded(0, 1e6))
     """lambda_2 (vMAP: depth x1)."""
-    colour: float = 5.0
+    colour: float = field(default=5.0, metadata=bounded(0, 1e6))
     """lambda_3 (vMAP: colour x5)."""
     depth_uncertainty: bool = True
     """Weight depth errors by 1 / (sqrt(var) + 1e-4) as vMAP (False: the paper's plain L1)."""
-    free_space: float = field(default=0.0, metadata=NEUTRAL_DEFAULT)
+    free_space: float = field(default=0.0, metadata=bounded(0, 1e6, also=NEUTRAL_DEFAULT))
     """Weight of ``free_space_loss`` (0: off, vMAP's loss). Eq. 8 asks only that a ray's summed occupancy be
     1 on the instance's pixels, which an occupied blob anywhere in front of the surface also gives; this
     term asks every sample in front of an observed surface to be empty (empty-space carving)."""

@@ -14,6 +14,7 @@ On the wire a grid is its lattice origin and shape and 2 bits per cell, zlib-com
 
 from __future__ import annotations
 
+import math
 import struct
 import zlib
 from dataclasses import dataclass, field
@@ -29,11 +30,59 @@ a ``SURFACE`` cell: a network's 0.5 level lies within a few cm of the depth poin
 surface cut by its cell's face continues into the neighbour."""
 MAX_CELLS = 1 << 24
 """The largest grid a message may announce (a 12 m x 12 m x 3 m room at 5 cm is 3.5 M cells)."""
-_HEADER = struct.Struct("<d3q3q")  # cell_m, origin (3), shape (3)
+LATTICE_LIMIT = 1 << 40
+"""The largest |lattice index| a grid may use: 2^40 cells of 1 mm reach a billion km, so a corner beyond it is
+corrupt or hostile, and sums of two indices stay far inside int64."""
+GRID_HEADER = struct.Struct("<d3q3q")
+"""A grid's wire header: cell_m, origin (3), shape (3)."""
 
 
 class ObservedSpaceError(ValueError):
-    """Bytes that are not an observed-space grid, or one outside the receiver's limits."""
+    """Bytes that are not an observed-space grid, one outside the receiver's limits, or a grid too large to keep."""
+
+
+@dataclass(frozen=True)
+class GridHeader:
+    """What a grid's wire header announces, checked, in Python integers (no int64 overflow)."""
+
+    cell_m: float
+    origin: tuple[int, int, int]
+    shape: tuple[int, int, int]
+
+    @property
+    def cells(self) -> int:
+        return math.prod(self.shape)
+
+
+def grid_header(data: bytes | memoryview, cell_m: float | None = None, max_cells: int = MAX_CELLS) -> GridHeader:
+    """The header of a grid's wire bytes, read without decoding its cells: a positive cell (``cell_m`` if
+    given), at most ``max_cells`` cells, an origin within ``LATTICE_LIMIT``; ObservedSpaceError otherwise."""
+    if len(data) < GRID_HEADER.size:
+        raise ObservedSpaceError(f"observed space of {len(data)} bytes: shorter than its header")
+    cell, *rest = GRID_HEADER.unpack_from(data)
+    origin, shape = (rest[0], rest[1], rest[2]), (rest[3], rest[4], rest[5])
+    if not (math.isfinite(cell) and cell > 0) or (cell_m is not None and cell != cell_m):
+        raise ObservedSpaceError(f"observed space: cell size {cell}, expected {cell_m}")
+    if any(s < 0 for s in shape) or math.prod(shape) > max_cells:
+        raise ObservedSpaceError(f"observed space: shape {list(shape)} out of bounds (at most {max_cells} cells)")
+    if any(abs(o) > LATTICE_LIMIT for o in origin):
+        raise ObservedSpaceError(f"observed space: origin {list(origin)} out of bounds (lattice indices within "
+                                 f"+-2^40)")
+    return GridHeader(float(cell), origin, shape)
+
+
+def lattice_cell(x: float, cell_m: float) -> int:
+    """The lattice index of world coordinate ``x`` (``cells_of`` for one value, as a Python integer);
+    ObservedSpaceError beyond ``LATTICE_LIMIT``, where int64 lattice arithmetic could overflow."""
+    index = float(x) / cell_m
+    if not (math.isfinite(index) and abs(index) <= LATTICE_LIMIT):
+        raise ObservedSpaceError(f"a coordinate of {x} m lies beyond the lattice (+-2^40 cells of {cell_m} m)")
+    return math.floor(index)
+
+
+def box_cells(lo, hi, cell_m: float) -> tuple[list[int], list[int]]:
+    """The first and last lattice cell of the world box [lo, hi] per axis, as Python integers."""
+    return [lattice_cell(x, cell_m) for x in lo], [lattice_cell(x, cell_m) for x in hi]
 
 
 @dataclass
@@ -69,17 +118,23 @@ class ObservedSpace:
 
     def cover(self, lo: np.ndarray, hi: np.ndarray) -> None:
         """Grow the grid (keeping its states) to hold the world box [lo, hi]."""
-        first, last = self.cells_of(np.stack([lo, hi]))
+        self.cover_cells(*box_cells(lo, hi, self.cell_m))
+
+    def cover_cells(self, first: list[int], last: list[int]) -> None:
+        """Grow the grid (keeping its states) to hold lattice cells ``first``..``last`` (inclusive, per axis; Python
+        integers, so a far corner cannot overflow); ObservedSpaceError, nothing changed, past ``MAX_CELLS``."""
         if self.states.size:
-            first = np.minimum(first, self.origin)
-            last = np.maximum(last, self.origin + np.array(self.states.shape) - 1)
-        shape = tuple(int(s) for s in last - first + 1)
-        if self.states.size and np.array_equal(first, self.origin) and shape == self.states.shape:
+            origin = self.origin.tolist()
+            first = [min(f, o) for f, o in zip(first, origin)]
+            last = [max(x, o + n - 1) for x, o, n in zip(last, origin, self.states.shape)]
+        shape = tuple(b - a + 1 for a, b in zip(first, last))
+        if self.states.size and first == self.origin.tolist() and shape == self.states.shape:
             return
-        if int(np.prod(shape)) > MAX_CELLS:
-            raise ValueError(f"an observed-space grid of {shape} cells exceeds {MAX_CELLS}: a box of "
-                             f"{(hi - lo).round(2).tolist()} m at {self.cell_m} m cells")
+        if min(shape) < 1 or math.prod(shape) > MAX_CELLS:
+            raise ObservedSpaceError(f"an observed-space grid of {shape} cells is empty or exceeds {MAX_CELLS} (cells "
+                                     f"{first}..{last} at {self.cell_m} m)")
         grown = np.zeros(shape, np.uint8)
+        first = np.array(first, np.int64)
         if self.states.size:
             at = self.origin - first
             grown[at[0]:at[0] + self.states.shape[0], at[1]:at[1] + self.states.shape[1],
@@ -161,11 +216,11 @@ class ObservedSpace:
     def merge(self, other: "ObservedSpace") -> None:
         """Add ``other``'s observations (same lattice): the cell-wise maximum."""
         if other.cell_m != self.cell_m:
-            raise ValueError(f"observed spaces of {other.cell_m} m and {self.cell_m} m cells do not merge")
+            raise ObservedSpaceError(f"observed spaces of {other.cell_m} m and {self.cell_m} m cells do not merge")
         if not other.states.size:
             return
-        self.cover(other.lo + 0.5 * other.cell_m,
-                   other.lo + (np.array(other.states.shape) - 0.5) * other.cell_m)
+        origin = other.origin.tolist()
+        self.cover_cells(origin, [o + n - 1 for o, n in zip(origin, other.states.shape)])
         at = other.origin - self.origin
         view = self.states[at[0]:at[0] + other.states.shape[0], at[1]:at[1] + other.states.shape[1],
                            at[2]:at[2] + other.states.shape[2]]
@@ -183,34 +238,38 @@ class ObservedSpace:
         padded[:len(flat)] = flat
         quads = padded.reshape(-1, 4)
         packed = (quads[:, 0] | quads[:, 1] << 2 | quads[:, 2] << 4 | quads[:, 3] << 6).astype(np.uint8)
-        return _HEADER.pack(self.cell_m, *self.origin.tolist(), *self.states.shape) + zlib.compress(packed.tobytes(), 6)
+        header = GRID_HEADER.pack(self.cell_m, *self.origin.tolist(), *self.states.shape)
+        return header + zlib.compress(packed.tobytes(), 6)
 
     @classmethod
     def from_bytes(cls, data: bytes, cell_m: float | None = None, max_cells: int = MAX_CELLS) -> "ObservedSpace":
-        """Inverse of ``to_bytes``; ObservedSpaceError for bytes that are not one (or of another ``cell_m``)."""
-        if len(data) < _HEADER.size:
-            raise ObservedSpaceError(f"observed space of {len(data)} bytes: shorter than its header")
-        cell, *rest = _HEADER.unpack_from(data)
-        origin, shape = np.array(rest[:3], np.int64), tuple(rest[3:])
-        if not (np.isfinite(cell) and cell > 0) or (cell_m is not None and cell != cell_m):
-            raise ObservedSpaceError(f"observed space: cell size {cell}, expected {cell_m}")
-        if any(s < 0 for s in shape) or np.prod(shape, dtype=object) > max_cells or np.any(np.abs(origin) > 1 << 40):
-            raise ObservedSpaceError(f"observed space: shape {shape} / origin {origin.tolist()} out of bounds")
-        n = int(np.prod(shape, dtype=object))
+        """Inverse of ``to_bytes``; ObservedSpaceError for bytes that are not one (or of another ``cell_m``).
+        Nothing beyond the announced cells is inflated (no zip bomb), and the header is checked first."""
+        header = grid_header(data, cell_m, max_cells)
+        n = header.cells
         want = -(-n // 4)
         try:
             decompressor = zlib.decompressobj()
-            raw = decompressor.decompress(data[_HEADER.size:], want + 1)  # bounded: no zip bomb
+            raw = decompressor.decompress(data[GRID_HEADER.size:], want + 1)  # bounded: no zip bomb
         except zlib.error as exc:
             raise ObservedSpaceError(f"observed space: corrupt cells ({exc})") from None
         if len(raw) != want or decompressor.unconsumed_tail or not decompressor.eof:
             raise ObservedSpaceError(f"observed space: {len(raw)} bytes of cells{'' if decompressor.eof else ' (cut)'}"
                                      f", expected {want}")
-        packed = np.frombuffer(raw, np.uint8)
-        cells = np.stack([packed & 3, packed >> 2 & 3, packed >> 4 & 3, packed >> 6 & 3], axis=1).reshape(-1)[:n]
-        if np.any(cells > SURFACE):
-            raise ObservedSpaceError("observed space: a cell state outside unknown / free / surface")
-        return cls(float(cell), origin, cells.reshape(shape).astype(np.uint8))
+        return cls(header.cell_m, np.array(header.origin, np.int64), unpacked_states(raw, header.shape))
+
+
+def unpacked_states(raw: bytes, shape: tuple[int, int, int]) -> np.ndarray:
+    """The (X, Y, Z) uint8 states of 2-bit packed cells (four a byte), written into the grid's one array with
+    no temporary larger than the packed bytes: a message's grids are its largest allocation."""
+    packed = np.frombuffer(raw, np.uint8)
+    if np.any(packed & (packed >> 1) & 0x55):  # some 2-bit cell is 3: not unknown / free / surface
+        raise ObservedSpaceError("observed space: a cell state outside unknown / free / surface")
+    cells = np.empty((len(packed), 4), np.uint8)
+    for k in range(4):
+        np.right_shift(packed, 2 * k, out=cells[:, k])
+        cells[:, k] &= 3
+    return cells.reshape(-1)[:math.prod(shape)].reshape(shape)
 
 
 _REACH_OFFSETS = np.stack(np.meshgrid(*[np.arange(-SURFACE_REACH_CELLS, SURFACE_REACH_CELLS + 1)] * 3,

@@ -7,13 +7,14 @@ at the same places it updates an instance's box.
 
 from __future__ import annotations
 
+import warnings
 from typing import Mapping
 
 import numpy as np
 import torch
 
 from mapping.data import Frame
-from mapping.model.observed import ObservedSpace, observe_frame
+from mapping.model.observed import ObservedSpace, ObservedSpaceError, observe_frame
 
 OWN_PIXEL_STRIDE = 4
 """Every n-th of an instance's own pixels also marks its ray free (its box's front, seen at any stride)."""
@@ -61,12 +62,18 @@ class ObservedMaps:
 
     def add(self, iid: int, space: ObservedSpace | None) -> None:
         """Add ``space`` (a peer's observations of this instance) to the instance's own; ignored when this
-        agent keeps none or the peer sent none."""
+        agent keeps none or the peer sent none. A peer's grid that cannot join this one (another cell, or
+        together more than ``MAX_CELLS``: a box far from the instance's own) is left out with a warning, the
+        own grid unchanged: an arrived message is applied, never a reason to stop mapping."""
         if not self.enabled or space is None:
             return
-        if iid not in self.spaces:
-            self.spaces[iid] = ObservedSpace.empty(self.cell_m)
-        self.spaces[iid].merge(space)
+        own = self.spaces.get(iid, ObservedSpace.empty(self.cell_m))
+        try:
+            own.merge(space)  # checks before it changes anything
+        except ObservedSpaceError as exc:
+            warnings.warn(f"a peer's observed space of instance {iid} left out: {exc}", stacklevel=2)
+            return
+        self.spaces[iid] = own
 
     def export(self, iid: int, lo: np.ndarray, hi: np.ndarray) -> ObservedSpace | None:
         """A copy of the instance's space grown to its box [lo, hi] (what a peer receives), or None."""

@@ -8,12 +8,13 @@ directions are world coordinates; a camera pose is camera-to-world with OpenCV a
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Protocol, Sequence
 
 import torch
 from torch import Tensor
 
+from mapping.config_fields import bounded
 from mapping.data.frame import Intrinsics
 
 FREE_PROBABILITY_FLOOR = 1e-10
@@ -97,17 +98,17 @@ def ray_aabb(origins: Tensor, directions: Tensor, bound_min: Tensor, bound_max: 
 class SamplerConfig:
     """vMAP's per-ray samples for training one instance."""
 
-    n_stratified: int = 1
+    n_stratified: int = field(default=1, metadata=bounded(0, 1024))
     """Samples between the near bound and d - surface_eps (vMAP: 1 for objects, 5 for background)."""
-    n_surface: int = 9
+    n_surface: int = field(default=9, metadata=bounded(0, 1024))
     """Samples around the observed depth d (vMAP: 9)."""
-    surface_eps_m: float = 0.1
+    surface_eps_m: float = field(default=0.1, metadata=bounded(0, 10, low_open=True))
     """Half-width of the surface band; own rays draw N(d, eps/3) clipped to d +- eps (vMAP: 0.1)."""
-    other_eps_m: float = 0.05
+    other_eps_m: float = field(default=0.05, metadata=bounded(0, 10))
     """Rays on other surfaces sample [d - eps, d + other_eps]: free space up to just behind them (vMAP: 0.05)."""
-    near_m: float = 0.0
+    near_m: float = field(default=0.0, metadata=bounded(0, 1000))
     """Near bound (vMAP: depth range [0, 8])."""
-    far_m: float = 8.0
+    far_m: float = field(default=8.0, metadata=bounded(0, 1000, low_open=True))
     """Far bound, used by rays without depth."""
 
 

@@ -19,58 +19,60 @@ grid of fused bounds and its prior for voxels no robot observed; the keyframe bu
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import torch
 from torch import Tensor
+
+from mapping.config_fields import bounded
 
 
 @dataclass(frozen=True)
 class SdfConfig:
     """MACIM's published map: network, samples, losses, optimiser and iteration budget."""
 
-    width: int = 256
+    width: int = field(default=256, metadata=bounded(1, 4096))
     """Hidden width (``hidden_feature_size``)."""
-    scale_output: float = 0.14
+    scale_output: float = field(default=0.14, metadata=bounded(0, 1000, low_open=True))
     """The network's output times this is the signed distance in metres."""
-    encoding_per_m: float = 0.05937489
+    encoding_per_m: float = field(default=0.05937489, metadata=bounded(0, 1000, low_open=True))
     """Coordinates (metres from the scene centre) are multiplied by this before the encoding."""
-    occupancy_sharpness: float = 50.0
+    occupancy_sharpness: float = field(default=50.0, metadata=bounded(0, 1e6, low_open=True))
     """Ours, not theirs: the map's occupancy is sigmoid(-sharpness * sdf), so meshing at 0.5 is the zero
     level set and the occupancy renderers (pictures, the depth check, the reward's probes) read the SDF."""
-    rays: int = 200
+    rays: int = field(default=200, metadata=bounded(1, 65_536))
     """Rays per step (``n_rays``)."""
-    n_stratified: int = 22
+    n_stratified: int = field(default=22, metadata=bounded(0, 1024))
     """Stratified samples per ray between the near bound and the surface (``n_strat_samples``)."""
-    n_surface: int = 5
+    n_surface: int = field(default=5, metadata=bounded(1, 1024))
     """The surface sample itself and four around it."""
-    min_depth_m: float = 0.07
+    min_depth_m: float = field(default=0.07, metadata=bounded(0, 1000))
     """Near bound of the stratified samples (``min_depth``)."""
-    behind_surface_m: float = 0.1
+    behind_surface_m: float = field(default=0.1, metadata=bounded(0, 1000))
     """How far behind the measured surface the stratified samples reach (``dist_behind_surf``)."""
-    surface_std_m: float = 0.1
+    surface_std_m: float = field(default=0.1, metadata=bounded(0, 100))
     """Spread of the samples around the surface (``surface_samples_offset``)."""
-    truncation_m: float = 0.2956502
+    truncation_m: float = field(default=0.2956502, metadata=bounded(0, 100, low_open=True))
     """Truncation distance of the SDF supervision (``trunc_distance``)."""
-    truncation_weight: float = 3.3834402
+    truncation_weight: float = field(default=3.3834402, metadata=bounded(0, 1e6))
     """Weight of the truncated-SDF loss near the surface (``trunc_weight``)."""
-    free_space_factor: float = 5.0
+    free_space_factor: float = field(default=5.0, metadata=bounded(0, 1e6))
     """Steepness of the free-space loss beyond the truncation (``free_space_factor``)."""
-    loss_cap: float = 2.0
+    loss_cap: float = field(default=2.0, metadata=bounded(0, 1e6, low_open=True))
     """Upper bound of the free-space loss per sample (``max_loss``)."""
-    eikonal_weight: float = 0.0268
+    eikonal_weight: float = field(default=0.0268, metadata=bounded(0, 1e6))
     """Weight of the eikonal term (``eik_weight``)."""
-    eikonal_apply_m: float = 0.1
+    eikonal_apply_m: float = field(default=0.1, metadata=bounded(0, 100))
     """The eikonal term applies to samples at least this far from the surface (``eik_apply_dist``)."""
-    lr: float = 0.0013
+    lr: float = field(default=0.0013, metadata=bounded(0, 10, low_open=True))
     """Adam learning rate (``learning_rate``)."""
-    weight_decay: float = 0.012
+    weight_decay: float = field(default=0.012, metadata=bounded(0, 100))
     """Adam weight decay (``weight_decay``)."""
-    iterations_first: int = 200
+    iterations_first: int = field(default=200, metadata=bounded(0, 1_000_000))
     """The first frame is trained on this many iterations (``iters_first``), ..."""
-    iterations_per_frame: int = 3
+    iterations_per_frame: int = field(default=3, metadata=bounded(1, 100_000))
     """... every frame after it on this many (``iters_per_frame``; MACIM's keyframes get 6) ..."""
-    iterations_after: int = 200
+    iterations_after: int = field(default=200, metadata=bounded(0, 1_000_000))
     """... and the map this many after the last frame (``iters_last``)."""
 
     def __post_init__(self) -> None:

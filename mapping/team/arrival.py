@@ -28,6 +28,7 @@ import numpy as np
 
 from mapping.alignment.config import AlignmentConfig
 from mapping.alignment.graph import InstanceCollaborativeGraph
+from mapping.config_fields import bounded
 
 
 @dataclass(frozen=True)
@@ -36,7 +37,7 @@ class ArrivalConfig:
 
     alignment: AlignmentConfig = field(default_factory=AlignmentConfig)
     """The graph's edge rules (same values as the batch alignment)."""
-    merge_similarity: float = 0.6
+    merge_similarity: float = field(default=0.6, metadata=bounded(-1, 1))
     """Caption cosine two of my instances need to be merged as pieces of one object."""
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from mapping.config_fields import bounded
 from mapping.model.agent_config import MappingConfig
 from mapping.fusion.online import OnlineFusionConfig
 from mapping.team.arrival import ArrivalConfig
@@ -22,11 +23,11 @@ class ConsistencyConfig:
 
     algorithm: str = "consensus"
     """Parameter consistency (eq. 12): consensus (MACIM), dinno, dsgd or none."""
-    rho: float = 3.0
+    rho: float = field(default=3.0, metadata=bounded(0, 1e6))
     """Consensus penalty weight (MACIM used 0.3). With Adam the pull's step does not grow with rho, only
     its share of the gradient. Measured (room0 ``demo``, probe coverage, ``local_consensus``): rho 0.3
     90.6 %, rho 3 91.9 %."""
-    dinno_rho: float = 0.3
+    dinno_rho: float = field(default=0.3, metadata=bounded(0, 1e6))
     """DiNNO's penalty weight (its paper: 0.3-0.5)."""
     missing_edges: str = "skip"
     """DiNNO and DSGD with a peer whose vector for an instance did not arrive this round: ``skip`` the
@@ -34,7 +35,7 @@ class ConsistencyConfig:
     stale form: DiNNO's duals keep growing from an old difference, DSGD keeps mixing toward it).
     Consensus always uses the last vector held (MACIM). On a perfect link under ``always``, without
     changed-only sending, the two differ only on instances a peer stopped sending (e.g. merged away)."""
-    iterations: int = 5
+    iterations: int = field(default=5, metadata=bounded(0, 10_000))
     """Consistency iterations per round (data loss + the terms below)."""
     local_consensus: bool = True
     """With ``algorithm="consensus"``, also add the consensus penalty (eq. 12, toward the parameters last
@@ -58,10 +59,10 @@ class ConsistencyConfig:
     render_depth_uncertainty: bool = False
     """Weight eq. 13's depth errors by 1 / (sqrt(var) + 1e-4) as the data loss does (False: the paper's
     plain L1; the weight explodes where my map renders nothing yet)."""
-    render_weight: float = 0.3
+    render_weight: float = field(default=0.3, metadata=bounded(0, 1e6))
     """Weight of eq. 13 in the loss. Measured (room0 ``demo``, mapped poses): 1.0 83.4 %, 0.3 86.9 %,
     0.1 86.8 % probe coverage; without eq. 13 86.1 %."""
-    rays_per_pose: int = 256
+    rays_per_pose: int = field(default=256, metadata=bounded(1, 65_536))
     """Pixels replayed per shared pose."""
     ray_poses: str = "mapped"
     """Which of its views a peer shares rays of: ``current`` (this round's frames, the paper's) or
@@ -69,11 +70,11 @@ class ConsistencyConfig:
     views its map has trained on, so that its rendering there is worth following). Measured (room0 ``demo``, weight 1): current
     79.2 %, mapped 83.4 % probe coverage; the peer's map of the frames it just read has had one
     round of training."""
-    poses_per_message: int = 2
+    poses_per_message: int = field(default=2, metadata=bounded(1, 1024))
     """Poses a ray message carries (see ``ray_poses``)."""
-    samples_per_box: int = 16
+    samples_per_box: int = field(default=16, metadata=bounded(1, 1024))
     """Samples per crossed instance box when rendering shared rays."""
-    free_space_weight: float = 0.0
+    free_space_weight: float = field(default=0.0, metadata=bounded(0, 1e6))
     """Weight of eq. 13's optional free-space term (``render_consistency_loss``; 0: the plain L1)."""
 
     @property
@@ -100,15 +101,15 @@ class ExchangeConfig:
 
     float16: bool = False
     """Send network vectors and features as float16 (half the bytes)."""
-    changed_only: float | None = None
+    changed_only: float | None = field(default=None, metadata=bounded(0, 1e6))
     """Skip an instance whose parameters moved less than this (relative L2) since they last reached
     that peer; None sends every instance every time."""
-    up_to_date_tolerance: float = 0.05
+    up_to_date_tolerance: float = field(default=0.05, metadata=bounded(0, 1e6))
     """A peer holds an instance up to date while its parameters moved less than this (relative L2) since
     they reached it (``AgentSnapshot.links``: what an agent knows of its peers' copies)."""
-    cloud_voxel_m: float = 0.02
+    cloud_voxel_m: float = field(default=0.02, metadata=bounded(0, 10, low_open=True))
     """Voxel of the clouds sent for alignment."""
-    resend_cloud_growth: float = 2.0
+    resend_cloud_growth: float = field(default=2.0, metadata=bounded(0, 1e6, low_open=True))
     """Send an instance's cloud again when it has grown this many times since it last went."""
     forward_adopted: bool = False
     """Also send instances this agent only holds from peers (never saw itself): with every link up
@@ -128,7 +129,7 @@ class TeamConfig:
     arrival: ArrivalConfig = field(default_factory=ArrivalConfig)
     consistency: ConsistencyConfig = field(default_factory=ConsistencyConfig)
     exchange: ExchangeConfig = field(default_factory=ExchangeConfig)
-    frames_per_round: int = 5
+    frames_per_round: int = field(default=5, metadata=bounded(1, 100_000))
     """Frames each agent reads per round (``fast``: one keyframe per round)."""
     alignment: bool = True
     """Align arrived instances (False: every arrived instance is adopted, the ablation)."""
@@ -141,20 +142,20 @@ class TeamConfig:
     DiNNO average networks of one origin. False: each agent draws its own (the rows made before
     2026-12-05). Instance-level maps keep one draw per agent: an agent draws an instance's network when it
     first sees the instance."""
-    min_keyframes: int = 0
+    min_keyframes: int = field(default=0, metadata=bounded(0, 100_000))
     """Keyframes each agent's map takes at least from its stream: a stream shorter than a full path of the
     preset takes one every ``len(stream) // min_keyframes`` frames (down to every frame) instead of every
     ``keyframe_every``. The presets set it to what a full path of theirs gives, so the simulator's runs take
     their keyframes as without it. Measured (TUM fr3 cabinet, 29 frames 15 cm apart per agent at ``fast``):
     every frame a keyframe cut the depth check's off share from 72 to 40 %."""
-    min_local_steps: int = 0
+    min_local_steps: int = field(default=0, metadata=bounded(0, 1_000_000_000))
     """Local iterations each agent's map gets at least over its stream: an agent whose stream ends after
     fewer keyframes (a short recording, held-out frames) runs the rest after its last frame, as MACIM
     trains 200 iterations after its last frame. The presets set it to what a full path of theirs gets, so
     the simulator's runs, whose paths are full, train exactly as without it (unless frames are held out:
     ``holdout_every`` then gets the steps its held-out keyframes would have had). Measured (7-Scenes, 25 frames
     per agent at ``fast``): 5x the local iterations cut the depth check's off share from 49 to 27 %."""
-    holdout_every: int | None = None
+    holdout_every: int | None = field(default=None, metadata=bounded(2, 100_000))
     """Keep every k-th frame of each agent's stream (stream positions k-1, 2k-1, ...) out of its map: neither
     fused nor trained on, so the depth check can score views the map never saw. None: every frame mapped."""
 

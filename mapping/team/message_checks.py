@@ -14,12 +14,15 @@ from typing import Mapping
 import numpy as np
 
 from mapping.data.poses import rigid_pose_problem
-from mapping.model.observed import MAX_CELLS, ObservedSpace, ObservedSpaceError
+from mapping.model.observed import MAX_CELLS, ObservedSpace, ObservedSpaceError, box_cells
 from mapping.team.wire import MessageError, is_count
 
 BANKS = ("object", "structure")
 """The instance network banks a payload may name (``mapping.model.agent``)."""
 META_FIELDS = frozenset({"id", "bank", "half", "origin", "version", "caption", "confidence", "cloud", "observed"})
+GRID_SLACK_CELLS = 1
+"""How many cells an observed grid may start before, or end after, its instance's box on each axis: the box
+travels as float32 corners, the grid was made from the float64 box."""
 
 
 @dataclass(frozen=True)
@@ -35,6 +38,13 @@ class MessageRules:
         max_caption_chars: the longest caption.
         observed_cell_m: the cell an instance's observed space must use (None: any).
         max_observed_cells: the most cells one observed space may announce.
+        max_cloud_points: the most points one instance's down-sampled cloud may carry (a 2 cm voxel cloud of a
+            20 m x 20 m floor is 1 M): its share of ``message_size.decoded_size_cap``.
+        max_message_cells: the most cells all observed spaces of one message may announce together (a byte a
+            cell decoded): a box may honestly span ``max_observed_cells``, so 32 instances with 12.7 m boxes
+            would still decode to 512 MB; a room's instances at 5 cm announce a few million cells in all (every
+            box of a 12 m x 12 m x 3 m room spanning all of it: 3.5 M each), so 2^26 leaves room for about 19
+            such boxes.
     """
 
     num_agents: int | None = None
@@ -45,6 +55,8 @@ class MessageRules:
     max_caption_chars: int = 1000
     observed_cell_m: float | None = None
     max_observed_cells: int = MAX_CELLS
+    max_cloud_points: int = 1 << 20
+    max_message_cells: int = 1 << 26
 
 
 @dataclass(frozen=True)
@@ -157,20 +169,22 @@ def instance_meta(k: int, meta, rules: MessageRules) -> InstanceMeta:
 def checked_observed(arrays: dict[str, np.ndarray], k: int, lo: np.ndarray, hi: np.ndarray,
                      rules: MessageRules) -> ObservedSpace:
     """Instance ``k``'s observed space (array ``k.observed``: its wire bytes) if it decodes, uses the
-    receiver's cell and spans the instance's box [lo, hi] (one cell of slack for float32 corners)."""
+    receiver's cell and spans the instance's box [lo, hi] (``GRID_SLACK_CELLS`` of slack for float32 corners);
+    lattice indices are compared as Python integers, so no corner can overflow into a match."""
     name = f"{k}.observed"
     data = checked_array(arrays, name, (None,), floating=False)
     if data.dtype != np.uint8:
         raise MessageError(f"array {name}: expected bytes (uint8), got {data.dtype}")
     try:
         space = ObservedSpace.from_bytes(data.tobytes(), rules.observed_cell_m, rules.max_observed_cells)
+        first, last = box_cells(lo, hi, space.cell_m)
     except ObservedSpaceError as exc:
         raise MessageError(f"array {name}: {exc}") from None
-    first, last = space.cells_of(np.stack([lo, hi]).astype(np.float64))
-    end = space.origin + np.array(space.states.shape) - 1
-    if not space.states.size or np.any(np.abs(space.origin - first) > 1) or np.any(np.abs(end - last) > 1):
-        raise MessageError(f"array {name}: a grid of cells {space.origin.tolist()}..{end.tolist()} does not match "
-                           f"the instance's box (cells {first.tolist()}..{last.tolist()})")
+    origin = space.origin.tolist()
+    end = [o + n - 1 for o, n in zip(origin, space.states.shape)]
+    if not space.states.size or any(abs(a - b) > GRID_SLACK_CELLS for a, b in zip(origin + end, first + last)):
+        raise MessageError(f"array {name}: a grid of cells {origin}..{end} does not match the instance's box "
+                           f"(cells {first}..{last})")
     return space
 
 

@@ -28,9 +28,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from mapping.model.observed import ObservedSpace
-from mapping.team.message_checks import (MessageRules, agent_field, checked_array, checked_ids, checked_intrinsics,
-                                         checked_observed, count_field, instance_meta, rigid_poses)
-from mapping.team.wire import MessageError, pack, unpack
+from mapping.team.message_checks import (InstanceMeta, MessageRules, agent_field, checked_array, checked_ids,
+                                         checked_intrinsics, checked_observed, count_field, instance_meta, rigid_poses)
+from mapping.team.message_size import check_decoded_size
+from mapping.team.wire import ArrayEntry, MessageError, decode_arrays, pack, read_message
 
 __all__ = ["DegreeMessage", "InstancePayload", "Message", "MessageError", "MessageRules", "ParameterMessage",
            "PointCloudMessage", "RayMessage", "from_bytes", "replay_pixels", "to_bytes"]
@@ -164,11 +165,15 @@ def to_bytes(message: Message) -> bytes:
 
 def from_bytes(data: bytes, rules: MessageRules = MessageRules()) -> Message:
     """Inverse of ``to_bytes``; anything else (truncated, corrupt, an array of the wrong shape or dtype,
-    non-finite values, a field outside ``rules``) raises MessageError naming the field, and nothing else
-    escapes: nothing malformed is ever applied."""
+    non-finite values, a field outside ``rules``, a parameter message over its cap) raises MessageError naming
+    the field, and nothing else escapes: nothing malformed is ever applied. Arrays decode to no more than the
+    bytes that arrived (``wire``); a parameter message's grids, which inflate, are bounded by its cap first."""
     try:
-        kind, s, a = unpack(bytes(data))
+        kind, s, table, body = read_message(bytes(data))
         base = (agent_field(s, "sender", rules), agent_field(s, "receiver", rules), count_field(s, "round"))
+        if kind == "params":
+            return _parameter_message(base, s, table, body, rules)
+        a = decode_arrays(table, body)
         if kind == "rays":
             poses = rigid_poses(checked_array(a, "poses", (None, 4, 4)))
             intrinsics = checked_intrinsics(s.get("intrinsics"), rules)
@@ -186,24 +191,31 @@ def from_bytes(data: bytes, rules: MessageRules = MessageRules()) -> Message:
             if np.any(lists[2] < 1):
                 raise MessageError("array degrees: every degree must be >= 1")
             return DegreeMessage(*base, *lists)
-        if kind != "params":
-            raise MessageError(f"unknown message kind {kind[:40]!r}")
-        metas = s.get("instances")
-        if not isinstance(metas, list):
-            raise MessageError("field instances: expected a list")
-        instances = [_instance(k, meta, a, rules) for k, meta in enumerate(metas)]
-        ids = [inst.instance_id for inst in instances]
-        if len(set(ids)) != len(ids):
-            raise MessageError("field instances: an instance id appears twice")
-        return ParameterMessage(*base, instances, count_field(s, "degree"))
+        raise MessageError(f"unknown message kind {kind[:40]!r}")
     except MessageError:
         raise
     except Exception as exc:  # noqa: BLE001  (whatever a crafted message provokes is a refusal, not a crash)
         raise MessageError(f"corrupt message ({type(exc).__name__}: {str(exc)[:120]})") from None
 
 
-def _instance(k: int, meta, arrays: dict[str, np.ndarray], rules: MessageRules) -> InstancePayload:
-    m = instance_meta(k, meta, rules)
+def _parameter_message(base: tuple[int, int, int], scalars: dict, table: dict[str, ArrayEntry], body: memoryview,
+                       rules: MessageRules) -> ParameterMessage:
+    """A parameter message, its size checked against its cap (``message_size``) before any array is copied out
+    or any grid inflated."""
+    metas = scalars.get("instances")
+    if not isinstance(metas, list):
+        raise MessageError("field instances: expected a list")
+    checked = [instance_meta(k, meta, rules) for k, meta in enumerate(metas)]
+    check_decoded_size(checked, table, body, rules)
+    arrays = decode_arrays(table, body)
+    instances = [_instance(k, m, arrays, rules) for k, m in enumerate(checked)]
+    ids = [inst.instance_id for inst in instances]
+    if len(set(ids)) != len(ids):
+        raise MessageError("field instances: an instance id appears twice")
+    return ParameterMessage(*base, instances, count_field(scalars, "degree"))
+
+
+def _instance(k: int, m: InstanceMeta, arrays: dict[str, np.ndarray], rules: MessageRules) -> InstancePayload:
     params = checked_array(arrays, f"{k}.params", (None,))
     want = None if rules.param_counts is None else rules.param_counts[m.bank]
     if want is not None and len(params) != want:

@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from mapping.config_fields import NEUTRAL_DEFAULT
+from mapping.config_fields import NEUTRAL_DEFAULT, bounded, lengths
 
 
 class PlanError(ValueError):
@@ -79,16 +79,17 @@ class ChannelConfig:
     """The links: success probability per message, an optional budget per agent, and links that come and go
     (``mapping.team.links``: a range along the paths, a capacity per round)."""
 
-    success_probability: float = 1.0
+    success_probability: float = field(default=1.0, metadata=bounded(0, 1))
     """Chance that each message arrives (drawn per message from the team's seed)."""
-    budget_mb: float | None = None
+    budget_mb: float | None = field(default=None, metadata=bounded(0, 1e9))
     """Megabytes each agent may send over the run (None: unlimited)."""
-    link_success: tuple[tuple[float, ...], ...] | None = field(default=None, metadata=NEUTRAL_DEFAULT)
+    link_success: tuple[tuple[float, ...], ...] | None = field(
+        default=None, metadata=lengths(1, 256, lengths(1, 256, bounded(0, 1)), also=NEUTRAL_DEFAULT))
     """Per link, the chance that a message from agent i (row) to agent j (column) arrives, an N x N list (the
     diagonal is not used); given, it replaces ``success_probability``."""
-    link_range_m: float | None = None
+    link_range_m: float | None = field(default=None, metadata=bounded(0, 1e6, low_open=True))
     """A link is up only while its two agents are within this many metres (None: always up)."""
-    link_mb_per_round: float | None = None
+    link_mb_per_round: float | None = field(default=None, metadata=bounded(0, 1e6, low_open=True))
     """Megabytes a link carries a round; instances that do not fit wait for a later message (None: no limit)."""
 
     def __post_init__(self) -> None:

@@ -2,9 +2,10 @@
 header (scalars, and for each array its name, dtype, shape and offset), then the arrays' raw little-endian
 bytes.
 
-Bytes that crossed a process or a machine may be anything, so ``unpack`` checks every table entry with
-Python integers (no int64 overflow) against the bytes actually there before numpy sees it, bounds the
-header's size and nesting, and raises only ``MessageError``.
+Bytes that crossed a process or a machine may be anything, so ``read_message`` checks every table entry with
+Python integers (no int64 overflow) against the bytes actually there before numpy sees it (the arrays
+together at most the body: they decode to no more than arrived), bounds the header's size and nesting, and
+raises only ``MessageError``; ``decode_arrays`` then copies them out.
 """
 
 from __future__ import annotations
@@ -12,16 +13,22 @@ from __future__ import annotations
 import json
 import math
 import struct
+from dataclasses import dataclass
 
 import numpy as np
 
 MAGIC = b"OMMSG"
 VERSION = 1
 DTYPES = frozenset({"float16", "float32", "float64", "int32", "int64", "uint8"})
-MAX_HEADER_BYTES = 1 << 24
-"""16 MB of JSON: far above any real header (a few kB per instance)."""
+MAX_HEADER_BYTES = 1 << 21
+"""2 MB of JSON: a real header takes about 330 bytes per instance (6,000 instances fit), and JSON of nested
+empty lists parses to about 22 times its bytes in Python objects, so this bounds the header's objects to
+about 45 MB (16 MB let a header allocate 339 MB)."""
 MAX_NDIM = 4
 """No array that travels has more dimensions (poses are (F, 4, 4))."""
+MAX_EXTENT = 1 << 40
+"""The most elements the non-zero dimensions of one shape may multiply to: numpy refuses a (0, 2^62, 2^62)
+array although it is empty."""
 
 
 class MessageError(ValueError):
@@ -44,8 +51,25 @@ def pack(kind: str, scalars: dict, arrays: dict[str, np.ndarray]) -> bytes:
     return MAGIC + bytes([VERSION]) + struct.pack("<I", len(header)) + header + b"".join(blobs)
 
 
-def unpack(data: bytes) -> tuple[str, dict, dict[str, np.ndarray]]:
-    """Kind, scalars and arrays of ``data``; MessageError for anything that is not a well-formed message."""
+@dataclass(frozen=True)
+class ArrayEntry:
+    """One row of a message's array table, checked: its bytes lie inside the body (Python integers)."""
+
+    name: str
+    dtype: str
+    shape: tuple[int, ...]
+    offset: int
+
+    @property
+    def size(self) -> int:
+        """Bytes of the array (Python integers: no overflow)."""
+        return math.prod(self.shape) * np.dtype(self.dtype).itemsize
+
+
+def read_message(data: bytes) -> tuple[str, dict, dict[str, ArrayEntry], memoryview]:
+    """Kind, scalars, checked array table and body of ``data``, nothing decoded yet: so that what the arrays
+    would decode to can be checked first. The arrays together hold at most the body's bytes (no two may
+    share them: a table that points every entry at the same bytes would decode past the message)."""
     if len(data) < len(MAGIC) + 5 or not data.startswith(MAGIC):
         raise MessageError("not an OpenMulti message (bad magic)")
     if data[len(MAGIC)] != VERSION:
@@ -64,26 +88,53 @@ def unpack(data: bytes) -> tuple[str, dict, dict[str, np.ndarray]]:
             and isinstance(header.get("scalars"), dict) and isinstance(header.get("arrays"), list)):
         raise MessageError("corrupt message header (expected kind, scalars and arrays)")
     body = memoryview(data)[start + 4 + n:]
-    arrays = {}
-    for entry in header["arrays"]:
-        if not (isinstance(entry, list) and len(entry) == 4 and isinstance(entry[0], str)):
-            raise MessageError(f"corrupt array entry {str(entry)[:80]} (expected [name, dtype, shape, offset])")
-        name, dtype, shape, offset = entry
-        if name in arrays:
-            raise MessageError(f"array {name[:80]} appears twice")
-        if not (isinstance(dtype, str) and dtype in DTYPES):
-            raise MessageError(f"array {name[:80]}: dtype {str(dtype)[:40]!r} cannot travel (one of {sorted(DTYPES)})")
-        if not (isinstance(shape, list) and len(shape) <= MAX_NDIM and all(is_count(d) for d in shape)):
-            raise MessageError(f"array {name[:80]}: shape {str(shape)[:80]} is not a list of at most {MAX_NDIM} "
-                               f"non-negative integers")
-        if not is_count(offset):
-            raise MessageError(f"array {name[:80]}: offset {str(offset)[:40]} is not a non-negative integer")
-        size = math.prod(shape) * np.dtype(dtype).itemsize  # Python integers: no overflow
-        if offset + size > len(body):
-            raise MessageError(f"truncated message (array {name[:80]})")
-        dt = np.dtype(dtype).newbyteorder("<")
-        arrays[name] = np.frombuffer(body[offset:offset + size], dtype=dt).reshape(shape).astype(dtype)
-    return header["kind"], header["scalars"], arrays
+    table: dict[str, ArrayEntry] = {}
+    for raw in header["arrays"]:
+        entry = array_entry(raw, len(body))
+        if entry.name in table:
+            raise MessageError(f"array {entry.name[:80]} appears twice")
+        table[entry.name] = entry
+    announced = sum(entry.size for entry in table.values())
+    if announced > len(body):
+        raise MessageError(f"arrays of {announced} bytes in all, the body holds {len(body)} (arrays share bytes)")
+    return header["kind"], header["scalars"], table, body
+
+
+def array_entry(entry, body_bytes: int) -> ArrayEntry:
+    """A table row ``[name, dtype, shape, offset]`` if each is of its type and its bytes lie in the body."""
+    if not (isinstance(entry, list) and len(entry) == 4 and isinstance(entry[0], str)):
+        raise MessageError(f"corrupt array entry {str(entry)[:80]} (expected [name, dtype, shape, offset])")
+    name, dtype, shape, offset = entry
+    if not (isinstance(dtype, str) and dtype in DTYPES):
+        raise MessageError(f"array {name[:80]}: dtype {str(dtype)[:40]!r} cannot travel (one of {sorted(DTYPES)})")
+    if not (isinstance(shape, list) and len(shape) <= MAX_NDIM and all(is_count(d) for d in shape)):
+        raise MessageError(f"array {name[:80]}: shape {str(shape)[:80]} is not a list of at most {MAX_NDIM} "
+                           f"non-negative integers")
+    if math.prod(d for d in shape if d) > MAX_EXTENT:
+        raise MessageError(f"array {name[:80]}: shape {str(shape)[:80]} spans more than {MAX_EXTENT} elements")
+    if not is_count(offset):
+        raise MessageError(f"array {name[:80]}: offset {str(offset)[:40]} is not a non-negative integer")
+    checked = ArrayEntry(name, dtype, tuple(shape), offset)
+    if offset + checked.size > body_bytes:
+        raise MessageError(f"truncated message (array {name[:80]})")
+    return checked
+
+
+def array_view(entry: ArrayEntry, body: memoryview) -> np.ndarray:
+    """The array's values as a read-only view of the body (nothing copied)."""
+    values = np.frombuffer(body[entry.offset:entry.offset + entry.size], np.dtype(entry.dtype).newbyteorder("<"))
+    return values.reshape(entry.shape)
+
+
+def decode_arrays(table: dict[str, ArrayEntry], body: memoryview) -> dict[str, np.ndarray]:
+    """Each array of ``table`` copied out of the body in its native byte order."""
+    return {name: array_view(entry, body).astype(entry.dtype) for name, entry in table.items()}
+
+
+def unpack(data: bytes) -> tuple[str, dict, dict[str, np.ndarray]]:
+    """Kind, scalars and arrays of ``data``; MessageError for anything that is not a well-formed message."""
+    kind, scalars, table, body = read_message(data)
+    return kind, scalars, decode_arrays(table, body)
 
 
 def is_count(value) -> bool:

@@ -33,6 +33,7 @@ from typing import Callable, TypeVar
 import numpy as np
 
 from mapping.perception.model_cache import cache_root
+from mapping.safe_parse import load_json
 from openmulti_env.environment.reward_front import (FRONT_SCHEDULES, FrontPoints, front_key, front_price,
                                                     schedule_plan, schedule_rng)
 
@@ -119,7 +120,7 @@ def read_record(path: Path, parse: Callable[[dict], T]) -> T | None:
     if not path.exists():
         return None
     try:
-        return parse(json.loads(path.read_text()))
+        return parse(load_json(path))
     except (ValueError, KeyError, TypeError, AttributeError, OSError):  # JSONDecodeError is a ValueError
         return None
 

@@ -3,20 +3,22 @@ time (``resolved_team``): the one place every entry point builds its settings.""
 
 from __future__ import annotations
 
-import math
 import typing
 from dataclasses import replace
 from typing import Any, Mapping
 
+from mapping.config_fields import range_problem
 from mapping.model.agent_config import MappingConfig
 from mapping.perception.geometric_segmenter import SEGMENTER_SETTINGS
 from mapping.team import TeamConfig
 from mapping.team.consistency import CONSISTENCY_ALGORITHMS
 from mapping.team.global_map import GLOBAL_FORMS, MACIM_RHO
+from mapping.team.message_checks import MessageRules
 from mapping.team.team import LEARNERS
+from openmulti_env.experiment.memory import memory_problem
 from openmulti_env.experiment.overrides import ConfigError, apply_overrides, leaf_paths, resolve_key
-from openmulti_env.experiment.tree import (DATA_KINDS, PROCESS_MODES, REWARD_BASELINES, REWARD_MODES, TEXT_ENCODERS, Experiment)
-from openmulti_env.world.world import MAX_AGENTS
+from openmulti_env.experiment.tree import (DATA_KINDS, PROCESS_MODES, REWARD_BASELINES, REWARD_MODES, TEXT_ENCODERS,
+                                           Experiment)
 
 MINIMUMS = ("team.min_keyframes", "team.min_local_steps")
 """Team fields that follow ``world.path.frames_per_agent`` and the mapping unless set explicitly."""
@@ -35,6 +37,9 @@ def experiment(preset: str = "fast", overrides: Mapping[str, Any] | None = None,
     given = {k: v for k, v in {**(overrides or {}), **more}.items() if v is not None or admits_none(k)}
     paths = {resolve_key(Experiment, k): k for k in given}
     tree = apply_overrides(tree, given)
+    in_range = range_problem(tree)
+    if in_range:  # before anything below divides by a setting (keyframe_every 0)
+        raise ConfigError(in_range)
     if not any(p in paths or p == "team" for p in MINIMUMS):
         tree = tree.with_team_minimums()  # the minimums follow the overridden path length and mapping
     if "channel.success_probability" not in paths and "channel" not in paths:
@@ -75,69 +80,81 @@ def policy_success_probability(policy: str) -> float | None:
 
 
 def check(tree: Experiment) -> Experiment:
-    """``tree``, or ConfigError naming the field and what it takes (checks across fields and of names)."""
-    def need(ok: bool, message: str) -> None:
-        if not ok:
+    """``tree``, or ConfigError naming the field and what it takes: every number in its field's range
+    (``mapping.config_fields``), the names each field knows, the checks across fields and the estimated size of
+    the largest allocations (``openmulti_env.experiment.memory``), all before anything is built."""
+    for problem in (range_problem, preset_problem, name_problem, cross_field_problem, memory_problem):
+        message = problem(tree)
+        if message:
             raise ConfigError(message)
-
-    need(1 <= tree.world.num_agents <= MAX_AGENTS,
-         f"world.num_agents must be between 1 and {MAX_AGENTS}, got {tree.world.num_agents}")
-    need(tree.perception.text_encoder in TEXT_ENCODERS,
-         f"perception.text_encoder must be one of {TEXT_ENCODERS}, got {tree.perception.text_encoder!r}")
-    need(tree.perception.segmenter in SEGMENTER_SETTINGS,
-         f"perception.segmenter must be one of {tuple(SEGMENTER_SETTINGS)}, got {tree.perception.segmenter!r}")
-    need(tree.team.consistency.algorithm in CONSISTENCY_ALGORITHMS,
-         f"team.consistency.algorithm must be one of {CONSISTENCY_ALGORITHMS}, got {tree.team.consistency.algorithm!r}")
-    need(tree.global_map.form in GLOBAL_FORMS,
-         f"global_map.form must be one of {GLOBAL_FORMS}, got {tree.global_map.form!r}")
-    need(tree.team.shared_global_init or tree.team.global_map,
-         "team.shared_global_init=False applies to a global map only (team.global_map=True)")
-    need(tree.env.reward in REWARD_MODES, f"env.reward must be one of {REWARD_MODES}, got {tree.env.reward!r}")
-    need(tree.env.horizon is None or tree.env.horizon >= 1,
-         f"env.horizon (max_cycles) must be >= 1 or None, got {tree.env.horizon}")
-    need(tree.env.map_size >= 8, f"env.map_size must be at least 8 pixels, got {tree.env.map_size}")
-    need(tree.run.processes in PROCESS_MODES, f"run.processes must be None or 'ray', got {tree.run.processes!r}")
-    need(tree.run.learner in LEARNERS, f"run.learner must be one of {LEARNERS}, got {tree.run.learner!r}")
-    need(isinstance(tree.run.culling_viewpoint_stride, int) and tree.run.culling_viewpoint_stride >= 1,
-         f"run.culling_viewpoint_stride must be a whole number >= 1 (1: every viewpoint), "
-         f"got {tree.run.culling_viewpoint_stride!r}")
-    need(not (tree.run.learner == "fleet" and tree.run.processes),
-         "run.learner='fleet' batches agents in this process: not with run.processes")
-    need(tree.run.workers is None or tree.run.workers >= 1, f"run.workers must be >= 1, got {tree.run.workers}")
-    need(tree.run.checkpoint_every >= 0, f"run.checkpoint_every must be >= 0, got {tree.run.checkpoint_every}")
-    need(tree.data.kind in DATA_KINDS, f"data.kind must be one of {DATA_KINDS}, got {tree.data.kind!r}")
-    for path, value in (("world.path.frames_per_agent", tree.world.path.frames_per_agent),
-                        ("team.frames_per_round", tree.team.frames_per_round),
-                        ("team.mapping.keyframe_every", tree.team.mapping.keyframe_every),
-                        ("team.consistency.rays_per_pose", tree.team.consistency.rays_per_pose),
-                        ("env.probe_points", tree.env.probe_points)):
-        need(value >= 1, f"{path} must be >= 1, got {value}")
-    need(tree.env.reward_baseline in REWARD_BASELINES,
-         f"env.reward_baseline must be one of {REWARD_BASELINES}, got {tree.env.reward_baseline!r}")
-    need(tree.env.reward_baseline != "front" or tree.env.reward == "team",
-         f"env.reward_baseline='front' prices the team's bytes on the team's front: it needs env.reward='team', "
-         f"got {tree.env.reward!r}")
-    for path, value in (("env.comm_cost_per_mb", tree.env.comm_cost_per_mb), ("env.comm_cost_of_always", tree.env.comm_cost_of_always),
-                        ("env.budget_penalty", tree.env.budget_penalty)):
-        need(math.isfinite(value) and value >= 0, f"{path} must be a finite number >= 0, got {value}")
-    success = tree.channel.link_success
-    need(success is None or len(success) == tree.num_agents,
-         f"channel.link_success is {len(success or ())} x {len(success or ())}, the team has {tree.num_agents} agents")
-    need(tree.env.action_form in ("entries", "round", "instances"),
-         f"env.action_form must be one of ('entries', 'round', 'instances'), got {tree.env.action_form!r}")
-    need(isinstance(tree.env.instance_slots, int) and 1 <= tree.env.instance_slots <= 256,
-         f"env.instance_slots must be a whole number of slots per peer in 1..256, got {tree.env.instance_slots!r}")
-    changed = tree.team.exchange.changed_only
-    need(changed is None or (math.isfinite(changed) and changed >= 0),
-         f"team.exchange.changed_only must be None or a finite number >= 0, got {changed}")
-    need(tree.run.threads is None or tree.run.threads >= 1, f"run.threads must be >= 1 or None, got {tree.run.threads}")
-    need(device_problem(tree.run.device) is None, f"run.device: {device_problem(tree.run.device)}")
-    need(tree.channel.budget_mb is not None or not policy_needs_budget(tree.run.policy),
-         "policy 'budget' needs a budget: --comm-budget-mb MB (channel.budget_mb, the megabytes each agent may send)")
-    need(tree.channel.link_success is None or policy_success(tree.run.policy) >= 1.0,
-         f"policy {tree.run.policy!r} sets one success probability for every link, channel.link_success one per "
-         "link: give one of them (e.g. --policy always with --channel.link-success)")
     return tree
+
+
+def preset_problem(tree: Experiment) -> str | None:
+    """Why ``tree.preset`` names no preset, or None."""
+    from openmulti_env.presets import PRESET_NAMES  # noqa: PLC0415  (the presets are trees of this package)
+
+    if tree.preset not in PRESET_NAMES:
+        return f"preset must be one of {PRESET_NAMES}, got {tree.preset!r}"
+    return None
+
+
+def name_problem(tree: Experiment) -> str | None:
+    """The first field that names something unknown (an encoder, a form, a device), or None."""
+    names = (("perception.text_encoder", tree.perception.text_encoder, TEXT_ENCODERS),
+             ("perception.segmenter", tree.perception.segmenter, tuple(SEGMENTER_SETTINGS)),
+             ("team.consistency.algorithm", tree.team.consistency.algorithm, CONSISTENCY_ALGORITHMS),
+             ("global_map.form", tree.global_map.form, GLOBAL_FORMS),
+             ("env.reward", tree.env.reward, REWARD_MODES),
+             ("env.reward_baseline", tree.env.reward_baseline, REWARD_BASELINES),
+             ("env.action_form", tree.env.action_form, ("entries", "round", "instances")),
+             ("run.learner", tree.run.learner, LEARNERS),
+             ("data.kind", tree.data.kind, DATA_KINDS))
+    for path, value, known in names:
+        if value not in known:
+            return f"{path} must be one of {known}, got {value!r}"
+    if tree.run.processes not in PROCESS_MODES:
+        return f"run.processes must be None or 'ray', got {tree.run.processes!r}"
+    device = device_problem(tree.run.device)
+    return f"run.device: {device}" if device else None
+
+
+def cross_field_problem(tree: Experiment) -> str | None:
+    """The first rule between fields ``tree`` breaks, or None."""
+    sensor, sampler, consistency = tree.world.sensor, tree.team.mapping.sampler, tree.team.consistency
+    success = tree.channel.link_success
+    rays = consistency.rays_per_pose * consistency.poses_per_message
+    rules = (
+        (tree.team.shared_global_init or tree.team.global_map,
+         "team.shared_global_init=False applies to a global map only (team.global_map=True)"),
+        (not (tree.run.learner == "fleet" and tree.run.processes),
+         "run.learner='fleet' batches agents in this process: not with run.processes"),
+        (tree.env.reward_baseline != "front" or tree.env.reward == "team",
+         f"env.reward_baseline='front' prices the team's bytes on the team's front: it needs env.reward='team', "
+         f"got {tree.env.reward!r}"),
+        (success is None or len(success) == tree.num_agents,
+         f"channel.link_success is {len(success or ())} x {len(success or ())}, the team has {tree.num_agents} agents"),
+        (sensor.min_depth_m < sensor.max_depth_m,
+         f"world.sensor.min_depth_m ({sensor.min_depth_m}) must be below world.sensor.max_depth_m ({sensor.max_depth_m})"),
+        (sampler.near_m < sampler.far_m,
+         f"team.mapping.sampler.near_m ({sampler.near_m}) must be below team.mapping.sampler.far_m ({sampler.far_m})"),
+        (sampler.n_stratified + sampler.n_surface >= 1,
+         "team.mapping.sampler needs at least one sample per ray (n_stratified + n_surface >= 1)"),
+        (rays <= MessageRules.max_rays,
+         f"team.consistency.rays_per_pose x poses_per_message is {rays} rays a message, more than the "
+         f"{MessageRules.max_rays} a receiver renders (mapping.team.message_checks.MessageRules.max_rays)"),
+    )
+    return next((message for ok, message in rules if not ok), None) or policy_problem(tree)
+
+
+def policy_problem(tree: Experiment) -> str | None:
+    """What the policy needs of the links that the tree does not give (a budget; one success rate), or None."""
+    if tree.channel.budget_mb is None and policy_needs_budget(tree.run.policy):
+        return "policy 'budget' needs a budget: --comm-budget-mb MB (channel.budget_mb, the megabytes each agent may send)"
+    if tree.channel.link_success is not None and policy_success(tree.run.policy) < 1.0:
+        return (f"policy {tree.run.policy!r} sets one success probability for every link, channel.link_success one "
+                "per link: give one of them (e.g. --policy always with --channel.link-success)")
+    return None
 
 
 def policy_success(policy: str) -> float:

@@ -4,7 +4,6 @@ dicts in ``checkpoints/run_settings.json`` and ``metrics.json``'s ``config``).""
 
 from __future__ import annotations
 
-import json
 import os
 from dataclasses import asdict, replace
 from pathlib import Path
@@ -12,7 +11,9 @@ from typing import Any
 
 import yaml
 
+from mapping.config_fields import range_problem
 from mapping.pipeline.records import as_record, missing_paths, neutral_default_paths
+from mapping.safe_parse import ParseError, load_data
 from openmulti_env.experiment.overrides import ConfigError, from_mapping
 from openmulti_env.experiment.tree import Experiment
 
@@ -47,16 +48,18 @@ def write_config(tree: Experiment, out: Path) -> Path:
 
 
 def read_config(path: str | Path) -> Experiment:
-    """The tree in a ``config.yaml`` / ``.json`` (or a run's ``metrics.json``, whose ``config`` it takes);
-    ConfigError saying why it cannot be read."""
+    """The tree in a ``config.yaml`` / ``.json`` (or a run's ``metrics.json``, whose ``config`` it takes), every
+    number in its field's range; ConfigError saying why it cannot be read (the file is read by
+    ``mapping.safe_parse``: bounded in size and nesting, no duplicated keys, ``1e12`` a number)."""
+    if not str(path).strip():
+        raise ConfigError("--config names no file (an empty path); give a run's config.yaml or leave --config out")
     path = Path(path)
     if not path.is_file():
         raise ConfigError(f"config file {path} does not exist")
     try:
-        text = path.read_text()
-        data = json.loads(text) if path.suffix == ".json" else yaml.safe_load(text)
-    except (OSError, ValueError, yaml.YAMLError) as exc:
-        raise ConfigError(f"config file {path} is not valid {'JSON' if path.suffix == '.json' else 'YAML'}: {exc}") from None
+        data = load_data(path)
+    except (OSError, ParseError) as exc:
+        raise ConfigError(f"config file {path} cannot be read: {exc}") from None
     if isinstance(data, dict) and "config" in data and "mean" in data:  # a metrics.json
         data = data["config"]
     if not isinstance(data, dict):
@@ -77,8 +80,27 @@ def experiment_from_record(record: dict) -> Experiment:
         if record.get("version") != VERSION:
             raise ConfigError(f"written by another version of openmulti (layout version {record.get('version')!r}); "
                               f"this one reads version {VERSION}")
-        return from_mapping(Experiment, {k: v for k, v in record.items() if k not in ("format", "version")})
+        return _from_version1(record)
     return _from_version0(record)
+
+
+def _from_version1(record: dict) -> Experiment:
+    """A record of this version as a tree: it must hold settings and name a known preset; every number is
+    checked against its field's range (what needs the whole tree is checked when it is built)."""
+    from openmulti_env.presets import PRESET_NAMES  # noqa: PLC0415  (the presets are trees of this package)
+
+    settings = {k: v for k, v in record.items() if k not in ("format", "version")}
+    if not settings:
+        raise ConfigError("holds only its header (format and version), no settings: write the tree below it (a run "
+                          "writes OUT/config.yaml whole)")
+    if settings.get("preset") not in PRESET_NAMES:
+        raise ConfigError(f"preset must be one of {PRESET_NAMES}, got {settings.get('preset')!r} (a record names the "
+                          "preset its tree started from)")
+    tree = from_mapping(Experiment, settings)
+    problem = range_problem(tree)
+    if problem:
+        raise ConfigError(problem)
+    return tree
 
 
 def _from_version0(record: dict) -> Experiment:

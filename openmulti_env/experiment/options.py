@@ -19,8 +19,7 @@ import typing
 from functools import lru_cache
 from typing import Any, Mapping
 
-import yaml
-
+from mapping.safe_parse import ParseError, parse_yaml
 from openmulti_env.experiment.overrides import ALIASES, ConfigError, field_types
 
 TRAIN_DEST = "train:"
@@ -142,8 +141,8 @@ def parse_value(raw: Any, kind) -> Any:
     if str in plain or kind is str:
         return raw
     try:
-        return yaml.safe_load(raw)
-    except yaml.YAMLError as exc:
+        return parse_yaml(raw, f"the value {raw!r}")  # YAML 1.2's numbers: 1e12 and 1E-3 are numbers
+    except ParseError as exc:
         raise ConfigError(f"cannot read {raw!r}: {exc}") from None
 
 

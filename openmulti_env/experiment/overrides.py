@@ -176,6 +176,8 @@ def checked_value(value, kind, path: str):
     elif kind is int:
         if isinstance(value, int) and not isinstance(value, bool):
             return value
+        if isinstance(value, float) and value.is_integer():  # 1e5 in YAML or on the command line is a float
+            return int(value)
     elif kind is float:
         if isinstance(value, (int, float)) and not isinstance(value, bool):
             return float(value)

@@ -22,7 +22,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
 
-from mapping.config_fields import NEUTRAL_DEFAULT
+from mapping.config_fields import NEUTRAL_DEFAULT, bounded
 from mapping.model.sdf_loss import SdfConfig
 from mapping.team import ChannelConfig, TeamConfig
 from mapping.team.global_map import GLOBAL_ENCODING_SCALE, GLOBAL_FORMS, GLOBAL_WIDTH
@@ -58,9 +58,9 @@ class GlobalMapSettings:
     form: str = "equal_compute"
     """``equal_compute`` (an occupancy network with the instance-level map's per-step FLOPs) or
     ``published`` (MACIM's scene SDF, samples, losses, iteration budget and rho 0.3)."""
-    width: int = GLOBAL_WIDTH
+    width: int = field(default=GLOBAL_WIDTH, metadata=bounded(1, 4096))
     """Hidden width of the equal-compute network (the published form uses ``sdf.width``)."""
-    encoding_scale: float = GLOBAL_ENCODING_SCALE
+    encoding_scale: float = field(default=GLOBAL_ENCODING_SCALE, metadata=bounded(0, 1000, low_open=True))
     """Positional-encoding scale of the equal-compute network in the scene box."""
     sdf: SdfConfig = field(default_factory=SdfConfig)
     """The published form's settings (MACIM's by default)."""
@@ -72,7 +72,7 @@ class EnvSettings:
 
     reward: str = "team"
     """``team``: every agent gets the team's completion gain; ``individual``: its own."""
-    comm_cost_per_mb: float = 0.01
+    comm_cost_per_mb: float = field(default=0.01, metadata=bounded(0, 1e6))
     """Reward cost per megabyte sent (0: free bytes, and ``always`` is optimal by construction). 0.01 was chosen
     at ``rl_small``, where it puts the best fixed schedule inside the range (per agent: ``always`` 0.24,
     ``every:3`` 0.39, ``never`` 0.14; docs/schedules.md)."""
@@ -83,27 +83,27 @@ class EnvSettings:
     (team reward only): the same gains less what the episode's fixed-rate front completes more at the team's
     bytes after the step than before it, so the return is the margin over that front
     (``openmulti_env.environment.reward_front``); ``comm_cost_per_mb`` and ``comm_cost_of_always`` are not used."""
-    comm_cost_of_always: float = field(default=0.3, metadata=NEUTRAL_DEFAULT)
+    comm_cost_of_always: float = field(default=0.3, metadata=bounded(0, 1e6, also=NEUTRAL_DEFAULT))
     """With ``reward_baseline="never_always"``: the return's price of sending as many bytes as ``always`` does in
     that world (``always`` returns 1 minus this, ``never`` 0)."""
     action_form: str = "entries"
     """``entries`` (per peer: parameters, rays), ``round`` (one decision per round) or ``instances`` (per peer:
     which of ``instance_slots`` instances, then rays; ``openmulti_env.environment.actions``)."""
-    instance_slots: int = 16
+    instance_slots: int = field(default=16, metadata=bounded(1, 256))
     """Slots per peer of the ``instances`` action form and observation (its instances in priority order)."""
-    budget_penalty: float = 0.05
+    budget_penalty: float = field(default=0.05, metadata=bounded(0, 1e6))
     """Reward penalty per message refused because its sender's budget was spent."""
-    probe_points: int = 2000
+    probe_points: int = field(default=2000, metadata=bounded(1, 10_000_000))
     """Observable-surface samples of the completion estimate (reward; also the map channels' points)."""
-    map_size: int = 64
+    map_size: int = field(default=64, metadata=bounded(8, 4096))
     """Observation side in pixels (top-down map of the room)."""
-    horizon: int | None = None
+    horizon: int | None = field(default=None, metadata=bounded(1, 100_000))
     """Steps before truncation (None: until the paths end, which is termination). ``max_cycles`` is an alias."""
-    frame_cache_mb: float = 256.0
+    frame_cache_mb: float = field(default=256.0, metadata=bounded(0, 1e7))
     """Rendered frames kept in memory across episodes (past the cap frames are rendered again)."""
     cache_dir: str | None = None
     """World-geometry cache folder (default: ``$OPENMULTI_CACHE`` or ``~/.cache/openmulti``, then ``worlds/``)."""
-    cache_max_mb: float = 2048.0
+    cache_max_mb: float = field(default=2048.0, metadata=bounded(0, 1e9))
     """Size cap of the world cache; the least recently used entries go first."""
 
 
@@ -119,9 +119,9 @@ class RunSettings:
     """Output folder (the same folder and settings resume a run)."""
     device: str = "auto"
     """Learner device: cpu, cuda or auto (cuda when available)."""
-    threads: int | None = None
+    threads: int | None = field(default=None, metadata=bounded(1, 1024))
     """Torch threads (None: all cores, shared by the workers)."""
-    workers: int | None = None
+    workers: int | None = field(default=None, metadata=bounded(1, 1024))
     """Agents trained side by side on threads (None: one per core with 1 torch thread each, or 1 when
     ``threads`` is given); results do not depend on it."""
     processes: str | None = None
@@ -129,13 +129,13 @@ class RunSettings:
     learner: str = "per_agent"
     """``per_agent`` or ``fleet`` (every agent's steps batched into one computation; the same maps to float
     tolerance)."""
-    checkpoint_every: int = 5
+    checkpoint_every: int = field(default=5, metadata=bounded(0, 1_000_000))
     """Save the team every this many rounds (an interrupted run resumes from it)."""
-    max_rounds: int | None = None
+    max_rounds: int | None = field(default=None, metadata=bounded(0, 1_000_000))
     """Stop after this many rounds (None: when the paths end), e.g. for smoke tests."""
     three_cullings: bool = False
     """Also score every map NICE-SLAM-culled and unculled."""
-    culling_viewpoint_stride: int = 1
+    culling_viewpoint_stride: int = field(default=1, metadata=bounded(1, 1_000_000))
     """Cull each map to what every this-many-th free-space viewpoint sees (1: all, the published figures; 2
     culls in 0.58x the time and moved completion ratio by at most 0.08 points on make demo's and fast maps, 4
     in 0.40x by at most 0.19: docs/profile.md). The ground truth keeps every viewpoint."""
@@ -162,7 +162,7 @@ class DataSettings:
     """``A:B:S``: frames A..B-1 every S-th, before the split into agents."""
     intrinsics: str | None = None
     """``FX,FY,CX,CY``: override the data set's camera."""
-    depth_scale: float | None = None
+    depth_scale: float | None = field(default=None, metadata=bounded(0, 1e9, low_open=True))
     """Raw depth units per metre (None: the layout's or cam_params.json)."""
     recording_mapper: bool = True
     """The mapper through ``mapping.model.agent_config.for_recordings`` (carving, crossing free-space rays)."""
@@ -176,7 +176,7 @@ class Experiment:
     """The preset this tree started from (``openmulti_env.presets``); recorded, not read by the parts."""
     scene: str = "room0"
     """Scene preset name, ``random:SEED`` or the path of a scene manifest."""
-    seed: int = 0
+    seed: int = field(default=0, metadata=bounded(0, 2**32 - 1))
     """One seed for layout, paths, segmentation errors, channel draws and network initialisation."""
     world: WorldConfig = field(default_factory=WorldConfig)
     perception: PerceptionSettings = field(default_factory=PerceptionSettings)

@@ -128,10 +128,10 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 def experiment_from_args(args: argparse.Namespace):
     """The run's tree: ``--config``'s (or ``--preset``'s, ``fast`` by default) with the command line's overrides."""
-    if args.config and args.preset:
+    if args.config is not None and args.preset:
         raise ValueError("give --config FILE or --preset NAME, not both (the file's tree names its preset)")
     overrides = typed_overrides(tree_overrides(args), Experiment)
-    base = read_config(args.config) if args.config else None
+    base = read_config(args.config) if args.config is not None else None  # --config= is refused, not ignored
     return experiment(args.preset or "fast", overrides, base=base)
 
 

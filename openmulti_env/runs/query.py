@@ -12,7 +12,6 @@ the meshes and matplotlib, so it is drawn only when asked (``plot=True``, ``--pl
 
 from __future__ import annotations
 
-import json
 import re
 import sys
 import warnings
@@ -23,6 +22,7 @@ import numpy as np
 
 from mapping.evaluate.retrieval import RetrievalHit, RetrievalIndex, check_encoder
 from mapping.perception.codebook import CodeBook, CodeBookError
+from mapping.safe_parse import load_json
 
 __all__ = ["QueryResult", "RunMap", "load_map", "load_run_codebooks", "query_slug", "run_query"]
 
@@ -69,7 +69,7 @@ def load_run_codebooks(run_dir: Path) -> dict[str, CodeBook]:
     names = sorted((p.stem for p in folder.glob("agent_*.json")), key=_agent_index)
     if not names:
         metrics = run_dir / "metrics.json"
-        if metrics.is_file() and json.loads(metrics.read_text()).get("evaluated") is False:
+        if metrics.is_file() and load_json(metrics).get("evaluated") is False:
             raise CodeBookError(f"{run_dir} was mapped with --no-evaluation: it has no code books yet; run the same "
                                 "command without --no-evaluation to score the maps and write them")
         raise CodeBookError(f"no code book in {folder} (expected agent_K.json + agent_K.npz): was the run made with the perception front end?")
@@ -218,7 +218,7 @@ def run_query(run_dir: str | Path, text: str, top_k: int = 5, clip_checkpoint: s
 
 def _scene_name(run_dir: Path) -> str | None:
     try:
-        return json.loads((run_dir / "metrics.json").read_text())["config"]["scene"]
+        return load_json(run_dir / "metrics.json")["config"]["scene"]
     except (OSError, ValueError, KeyError, TypeError):
         return None
 

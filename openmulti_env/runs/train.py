@@ -147,11 +147,12 @@ def env_settings(args) -> tuple[dict, "Experiment"]:
     from openmulti_env.experiment import Experiment, read_config  # noqa: PLC0415
     from openmulti_env.experiment.options import tree_overrides, typed_overrides  # noqa: PLC0415
 
-    if getattr(args, "config", None) and getattr(args, "preset", None):
+    config = getattr(args, "config", None)
+    if config is not None and getattr(args, "preset", None):
         raise ValueError("give --config FILE or --preset NAME, not both (the file's tree names its preset)")
     overrides = typed_overrides(tree_overrides(args), Experiment)
     kwargs = {k.replace(".", "__"): v for k, v in overrides.items()}
-    if getattr(args, "config", None):
+    if config is not None:  # --config= is refused by read_config, not ignored
         base = read_config(args.config)
         kwargs = {"preset": base.preset, "config": base, **kwargs}
     else:

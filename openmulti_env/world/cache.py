@@ -28,6 +28,7 @@ import numpy as np
 import trimesh
 
 from mapping.perception.model_cache import cache_root
+from mapping.safe_parse import load_data
 from openmulti_env.world.presets import make_scene
 from openmulti_env.world.visibility import ObservableSurface
 from openmulti_env.world.world import World, WorldConfig
@@ -156,16 +157,14 @@ def _read(entry: Path, scene: str, seed: int, config: WorldConfig, scene_object=
 
 def _manifest_digest(path: Path) -> str:
     """The manifest's bytes and those of every mesh it names (a changed mesh is a new world)."""
-    import yaml  # noqa: PLC0415
-
     h = hashlib.sha256(path.read_bytes())
     try:
-        spec = yaml.safe_load(path.read_text())
+        spec = load_data(path)
         for obj in (spec or {}).get("objects", []) or []:
             mesh = path.parent / str(obj.get("mesh", ""))
             if mesh.is_file():
                 h.update(mesh.read_bytes())
-    except (OSError, ValueError, AttributeError, TypeError, yaml.YAMLError):
+    except (OSError, ValueError, AttributeError, TypeError):  # ParseError is a ValueError
         pass  # a manifest the loader will reject (and name the problem): its bytes are key enough
     return h.hexdigest()
 

@@ -12,13 +12,13 @@ the two objects named.
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import trimesh
 
+from mapping.safe_parse import ParseError, load_data
 from openmulti_env.world.scene import Instance, Scene, build_structure
 
 OVERLAP_VOXEL_M = 0.01  # surfaces that share voxels of this size are in contact or crossing
@@ -35,16 +35,12 @@ class ManifestError(ValueError):
 def _read_manifest(path: Path) -> dict[str, Any]:
     if not path.is_file():
         raise ManifestError(f"{path}: scene manifest not found")
-    text = path.read_text()
     try:
-        if path.suffix.lower() == ".json":
-            data = json.loads(text)
-        else:
-            import yaml  # noqa: PLC0415
-
-            data = yaml.safe_load(text)
-    except Exception as exc:  # noqa: BLE001  (json and yaml raise different types)
-        raise ManifestError(f"{path}: cannot parse manifest: {exc}") from None
+        data = load_data(path)  # bounded in size and nesting, no duplicated keys
+    except ParseError as exc:  # its message begins with the file
+        raise ManifestError(f"cannot parse manifest {exc}") from None
+    except OSError as exc:
+        raise ManifestError(f"{path}: cannot read manifest: {exc}") from None
     if not isinstance(data, dict):
         raise ManifestError(f"{path}: manifest must be a mapping with 'room' and 'objects'")
     return data

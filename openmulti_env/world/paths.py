@@ -13,7 +13,7 @@ Poses are camera-to-world, OpenCV axes.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import networkx as nx
 import numpy as np
@@ -22,36 +22,41 @@ from scipy.ndimage import gaussian_filter1d
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation, Slerp
 
+from mapping.config_fields import bounded, lengths
 from mapping.data import Intrinsics
 from mapping.evaluate.raycast import MeshRaycaster
 from mapping.evaluate.visibility import visibility_matrix
 from openmulti_env.world.visibility import ObservableSurface
+
+MAX_FRAMES_PER_AGENT = 100_000
+"""Most frames a path may have (an hour at 30 frames a second): its poses and the planner's loops grow with it."""
 
 
 @dataclass(frozen=True)
 class PathConfig:
     """How agents move and look."""
 
-    frames_per_agent: int = 120
+    frames_per_agent: int = field(default=120, metadata=bounded(1, MAX_FRAMES_PER_AGENT))
     """Frames each agent records along its path."""
-    yaw_steps: int = 12
+    yaw_steps: int = field(default=12, metadata=bounded(1, 360))
     """Candidate headings per viewpoint (every 30 degrees)."""
-    pitches_deg: tuple[float, ...] = (-55.0, -25.0, 5.0, 35.0)
+    pitches_deg: tuple[float, ...] = field(default=(-55.0, -25.0, 5.0, 35.0),
+                                           metadata=lengths(1, 32, bounded(-89, 89)))
     """Candidate tilts (negative looks down)."""
-    max_view_distance_m: float = 6.0
+    max_view_distance_m: float = field(default=6.0, metadata=bounded(0, 100, low_open=True))
     """Faces farther than this do not count as covered by a key view (too few pixels on them)."""
-    target_region_coverage: float = 0.995
+    target_region_coverage: float = field(default=0.995, metadata=bounded(0, 1, low_open=True))
     """Stop adding key views once this share of the region's area is covered."""
-    max_key_views: int = 40
+    max_key_views: int = field(default=40, metadata=bounded(1, 10_000))
     """Upper bound on key views per agent."""
-    image_margin: float = 0.08
+    image_margin: float = field(default=0.08, metadata=bounded(0, 0.5, high_open=True))
     """Share of the image border not counted when choosing key views (the edge is seen at a slant)."""
-    foreign_penalty: float = 1.0
+    foreign_penalty: float = field(default=1.0, metadata=bounded(0, 1e6))
     """Cost of seeing another region's surface, per unit of own new surface: keeps agents looking at
     their own part of the room, which leaves each agent blind zones that only the team covers."""
-    smoothing_frames: float = 1.5
+    smoothing_frames: float = field(default=1.5, metadata=bounded(0, 1000))
     """Gaussian smoothing of positions along the path, in frames (rounds the grid's corners)."""
-    planning_points: int = 6000
+    planning_points: int = field(default=6000, metadata=bounded(1, 1_000_000))
     """Surface samples the planner reasons about."""
 
 

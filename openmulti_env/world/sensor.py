@@ -6,10 +6,11 @@ wants OpenGL axes (y up, z backward), so we flip y and z before rendering.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
+from mapping.config_fields import bounded
 from mapping.data import Frame, Intrinsics
 from openmulti_env.world.gl import load_pyrender
 from openmulti_env.world.scene import Scene
@@ -17,25 +18,28 @@ from openmulti_env.world.scene import Scene
 OPENCV_TO_OPENGL = np.diag([1.0, -1.0, -1.0, 1.0])
 # Replica's camera is 1200x680 with fx = fy = 600: a 90 degree horizontal field of view.
 REPLICA_HFOV_DEG = 90.0
+MAX_IMAGE_SIDE = 8192
+"""Widest and tallest image rendered: the smallest largest render target common GL drivers offer (Mesa's
+llvmpipe and most GPUs allow 16384)."""
 
 
 @dataclass(frozen=True)
 class SensorConfig:
     """What the camera sees and how its depth is corrupted."""
 
-    width: int = 320
+    width: int = field(default=320, metadata=bounded(8, MAX_IMAGE_SIDE))
     """Image width in pixels."""
-    height: int = 240
+    height: int = field(default=240, metadata=bounded(8, MAX_IMAGE_SIDE))
     """Image height in pixels."""
-    hfov_deg: float = REPLICA_HFOV_DEG
+    hfov_deg: float = field(default=REPLICA_HFOV_DEG, metadata=bounded(10, 170))
     """Horizontal field of view (Replica's 90 degrees by default)."""
-    min_depth_m: float = 0.1
+    min_depth_m: float = field(default=0.1, metadata=bounded(0, 1000))
     """Closer surfaces read as missing depth."""
-    max_depth_m: float = 10.0
+    max_depth_m: float = field(default=10.0, metadata=bounded(0, 1000, low_open=True))
     """Farther surfaces read as missing depth."""
-    depth_noise_std_m: float = 0.0
+    depth_noise_std_m: float = field(default=0.0, metadata=bounded(0, 10))
     """Gaussian depth noise at 1 m; grows with the square of depth (structured-light sensors). 0 = exact."""
-    missing_depth_prob: float = 0.0
+    missing_depth_prob: float = field(default=0.0, metadata=bounded(0, 1))
     """Probability that a valid depth pixel is dropped (set to 0). 0 = none."""
     platform: str | None = None
     """GL platform, "egl" (default) or "osmesa"."""

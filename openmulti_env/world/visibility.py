@@ -9,11 +9,12 @@ at least one virtual camera. Coverage and every geometric metric use the culled 
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import trimesh
 
+from mapping.config_fields import bounded, lengths
 from mapping.evaluate.raycast import MeshRaycaster
 from mapping.evaluate.visibility import visibility_matrix
 from openmulti_env.world.scene import Scene
@@ -23,11 +24,11 @@ from openmulti_env.world.scene import Scene
 class FreeSpaceConfig:
     """Where the virtual cameras of the culling (and the agents' candidate viewpoints) may stand."""
 
-    spacing_m: float = 0.5
+    spacing_m: float = field(default=0.5, metadata=bounded(0.05, 10))
     """Grid step of the viewpoints on the floor plan."""
-    heights_m: tuple[float, ...] = (0.9, 1.4, 1.9)
+    heights_m: tuple[float, ...] = field(default=(0.9, 1.4, 1.9), metadata=lengths(1, 32, bounded(0, 100)))
     """Camera heights above the floor (a person's and a robot's eye heights)."""
-    clearance_m: float = 0.25
+    clearance_m: float = field(default=0.25, metadata=bounded(0, 10))
     """Minimum distance from walls and from any object's bounding box."""
 
 

@@ -10,6 +10,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from mapping.config_fields import bounded
 from mapping.data import Frame, Intrinsics
 from openmulti_env.world.coverage import CoverageReport, coverage_report
 from openmulti_env.world.paths import PathConfig, plan_agent_paths
@@ -29,12 +30,12 @@ MAX_AGENTS = 8
 class WorldConfig:
     """Everything that shapes the simulated world, apart from the scene name and seed."""
 
-    num_agents: int = 4
+    num_agents: int = field(default=4, metadata=bounded(1, MAX_AGENTS))
     """Agents in the team, one path each (each maps its own region)."""
     path: PathConfig = field(default_factory=PathConfig)
     sensor: SensorConfig = field(default_factory=SensorConfig)
     free_space: FreeSpaceConfig = field(default_factory=FreeSpaceConfig)
-    culling_edge_m: float = 0.05
+    culling_edge_m: float = field(default=0.05, metadata=bounded(0.01, 10))
     """Faces are split to this edge length before culling (the granularity of the culled mesh)."""
 
 

@@ -15,7 +15,6 @@ holder, so a killed process leaves nothing stuck.
 
 from __future__ import annotations
 
-import json
 import time
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass
@@ -24,9 +23,10 @@ from typing import Callable, Iterator
 
 from tqdm import tqdm
 
+from mapping.pipeline.records import write_json_atomic
+from mapping.safe_parse import load_json
 from openmulti_env.runs.reproduce.methods import METHODS
 from openmulti_env.runs.reproduce.tables import RunSpec
-from mapping.pipeline.records import write_json_atomic
 
 
 def check_scenes(scenes: list[str]) -> None:
@@ -84,7 +84,7 @@ def policy_identity(policy: str) -> dict:
     if spec.rule not in ("learned", "file"):
         return {}
     path = SHIPPED if spec.rule == "learned" else Path(spec.settings["path"])
-    return {"policy_sha256": json.loads(path.read_text()).get("sha256")}
+    return {"policy_sha256": load_json(path).get("sha256")}
 
 
 def library_defaults(preset: str) -> dict:
@@ -127,7 +127,7 @@ def row_from_metrics(spec: RunSpec, metrics: dict) -> dict:
 def load_row(path: Path, settings: dict) -> dict | None:
     """The finished row at ``path`` if it was made with ``settings`` (None: missing, half-written or stale)."""
     try:
-        data = json.loads(path.read_text())
+        data = load_json(path)
     except (OSError, ValueError):
         return None
     if not isinstance(data, dict) or data.get("settings") != settings or "row" not in data:

@@ -12,12 +12,12 @@ budget and training worlds (from its file's record) are written under the table.
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
 
 from mapping.pipeline.records import write_json_atomic
+from mapping.safe_parse import load_json
 
 CULLINGS = {"comp_ratio": "", "comp_ratio_nice": "_nice"}
 """Completion-ratio key per culling, and the suffix of its fields in a policy's means."""
@@ -73,7 +73,7 @@ def learned_note() -> str:
 
     if not SHIPPED.is_file():
         return "No trained policy ships with this version: `learned` is not in the table."
-    training = json.loads(SHIPPED.read_text()).get("training", {})
+    training = load_json(SHIPPED).get("training", {})
     env = training.get("env", {})
     total = training.get("train", {}).get("total_env_steps", "?")
     return (f"`learned`: {SHIPPED.name}, trained with `{training.get('command', '?')}` (the snapshot at env step "
