@@ -20,7 +20,7 @@ demo: setup
 	$(VENV)/bin/openmulti run --scene $(SCENE) --agents $(AGENTS) --policy $(POLICY) --alignment $(ALIGNMENT) --preset $(PRESET) --out $(OUT)
 
 test: setup
-	$(PY) -m pytest tests -n $(TEST_WORKERS) --dist worksteal
+	$(PY) -m pytest tests -n $(TEST_WORKERS) --dist worksteal --durations=15
 
 bench: setup
 	$(PY) benchmarks/bench_world.py
