@@ -7,18 +7,16 @@ world stay light); importing the package registers ``openmulti/openmulti-v0`` in
 
 from __future__ import annotations
 
+import importlib
+
 ENV_ID = "openmulti/openmulti-v0"
 _ENV_NAMES = ("parallel_env", "env", "raw_env", "OpenMultiParallelEnv")
 
 
 def __getattr__(name: str):
     if name in _ENV_NAMES:
-        from openmulti_env import environment as _env_module  # noqa: PLC0415
-
-        return getattr(_env_module, name)
+        return getattr(importlib.import_module("openmulti_env.environment.parallel_env"), name)
     if name == "openmulti_v0":
-        import importlib  # noqa: PLC0415
-
         return importlib.import_module("openmulti_env.openmulti_v0")
     raise AttributeError(f"module 'openmulti_env' has no attribute {name!r}")
 

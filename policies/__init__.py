@@ -1,9 +1,10 @@
-"""Communication policies: scripted and learned (imports neither openmulti_env nor mapping).
+"""Communication policies: scripted and learned. Of ``openmulti_env`` they import only the env's observation
+contract, ``openmulti_env.environment.layout`` (a leaf: numpy and the standard library); nothing of ``mapping``.
 
 ``make_policy(name, num_agents)`` gives any policy by name (``policies.scripted.POLICY_FORMS``); every
 policy is called as ``policy(observations, infos, step) -> {agent: action}`` and says whether it reads
-observations (``reads_observations``: the layout is ``policies.observation``) and, when not ``entries``, its
-action form (``action_form``: ``instances`` for ``instance_novelty``).
+observations (``reads_observations``: the layout is ``openmulti_env.environment.layout``) and, when not
+``entries``, its action form (``action_form``: ``instances`` for ``instance_novelty``).
 """
 
 from __future__ import annotations

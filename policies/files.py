@@ -19,9 +19,9 @@ from pathlib import Path
 
 import torch
 
+from openmulti_env.environment.layout import (AGENT_FEATURES, LINK_FEATURES, MAP_CHANNELS, OBSERVATION_VERSION,
+                                              OBSERVATION_VERSIONS)
 from policies.network import CommPolicyNetwork, NetworkConfig
-from policies.observation import (AGENT_FEATURES, LINK_FEATURES, MAP_CHANNELS, OBSERVATION_VERSION,
-                                  OBSERVATION_VERSIONS)
 from policies.scripted import PolicyError
 
 FORMAT = "openmulti-comm-policy"

@@ -22,7 +22,7 @@ from typing import Mapping
 
 import numpy as np
 
-from policies.observation import agent_feature, instance_feature, link_feature, link_state
+from openmulti_env.environment.layout import agent_feature, instance_feature, link_feature, link_state
 
 RAY_RULES = ("held", "always", "never", "with_params")
 

@@ -1,7 +1,7 @@
 """The learned communication policy's network, in plain torch (no RL library needed to run it).
 
-``CommFeatures`` reads an observation (``policies.observation``): a small CNN over the ``map`` planes,
-pooled to a fixed 4 x 4 so any map size gives the same features, and an MLP over the ``comm`` vector;
+``CommFeatures`` reads an observation (``openmulti_env.environment.layout``): a small CNN over the ``map``
+planes, pooled to a fixed 4 x 4 so any map size gives the same features, and an MLP over the ``comm`` vector;
 ``CommPolicyNetwork`` adds the action head: one logit per action entry (send parameters / share rays per
 peer; action form ``entries``), one per agent broadcast to all its entries (``round``: send everything
 now or not, ``policies.gate``), or one for the whole team from its agents' pooled features (``team``: every

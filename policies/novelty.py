@@ -16,7 +16,7 @@ from typing import Mapping
 
 import numpy as np
 
-from policies.observation import AGE_SCALE, agent_feature, link_feature
+from openmulti_env.environment.layout import AGE_SCALE, agent_feature, link_feature
 
 RAY_RULES = ("held", "always", "never", "with_params")
 

@@ -4,8 +4,9 @@ Action layout (DESIGN.md): ``MultiBinary(2 * (N - 1))`` per agent; the first N -
 parameters to peer j", the last N - 1 "share my ray directions with peer j", peers in ascending index
 order skipping the agent itself.
 
-Every policy is called as ``policy(observations, infos, step) -> {agent: action}`` (``policies.observation``
-for what an observation holds); the fixed schedules here ignore the observations:
+Every policy is called as ``policy(observations, infos, step) -> {agent: action}``
+(``openmulti_env.environment.layout`` for what an observation holds); the fixed schedules here ignore the
+observations:
 
 - ``always`` / ``never``;
 - ``round_robin``: each round every agent talks to one peer, in turn;

@@ -8,7 +8,8 @@ the Ray issue). SuperSuit is semi-deprecated upstream; its two calls are isolate
 Read top to bottom: settings -> vector env over worker processes -> PPO with ``CommFeatures`` as its
 features extractor -> learn in chunks, each followed by a checkpoint (resumable), the policy file of the
 latest and of the best rolling return, the CSV log and its PNG. ``env_factory(index)`` makes the env of
-worker ``index`` (the CLI passes one that walks a distribution of worlds); this module imports no env.
+worker ``index`` (the CLI passes one that walks a distribution of worlds); this module imports no env (of
+the env, only its observation layout).
 """
 
 from __future__ import annotations
@@ -64,16 +65,19 @@ class TrainConfig:
     """TensorBoard logs under ``OUT/tensorboard`` (episodes at env steps; PPO's losses under ``ppo``); sb3 backend."""
 
 
+ADDED_AFTER_RUNS = ("critic", "read_links", "action_form", "payload", "worlds_per_worker")
+"""``TrainConfig`` fields added after training runs were made, each defaulting to the behaviour from before it
+(the local critic, no links read, the entries form, everything sent, one world a worker): a run folder without
+them resumes as if it had their defaults."""
+
+
 def same_run(old: dict, new: dict) -> bool:
     """Whether two runs' settings differ only in how long they train (and the command line that said so)."""
     def core(settings: dict) -> dict:
         kept = {k: v for k, v in settings.items() if k not in ("command", "title", "experiment")}
         kept["train"] = {k: v for k, v in settings.get("train", {}).items() if k not in ("total_env_steps", "tensorboard")}
-        kept["train"].setdefault("critic", "local")  # runs begun before the central critic had the local one
-        kept["train"].setdefault("read_links", False)  # and read no links
-        kept["train"].setdefault("action_form", "entries")  # runs begun before the round form were entries
-        kept["train"].setdefault("payload", "everything")  # and before the payload sent everything
-        kept["train"].setdefault("worlds_per_worker", 1)  # and before several worlds per worker, one each
+        for name in ADDED_AFTER_RUNS:  # a run begun before the setting existed had its default's behaviour
+            kept["train"].setdefault(name, getattr(TrainConfig, name))
         return kept
     return core(old) == core(new)
 
@@ -217,7 +221,7 @@ def train(env_factory: Callable[[int], object], config: TrainConfig, out: str | 
     from policies.critic import StateFactory, central_critic_policy, check_critic  # noqa: PLC0415
     from policies.gate import GatedFactory, TeamFactory, check_action_form, payload_rule  # noqa: PLC0415
     from policies.network import NetworkConfig  # noqa: PLC0415
-    from policies.observation import MAP_CHANNELS  # noqa: PLC0415
+    from openmulti_env.environment.layout import MAP_CHANNELS  # noqa: PLC0415
     from policies.safe_checkpoint import (UnsafeCheckpointError, load_training_state,  # noqa: PLC0415
                                           refuse_pickled_checkpoint, save_training_state)
     from policies.sb3_vec import sb3_vec_env_from_factory  # noqa: PLC0415

@@ -14,7 +14,8 @@ logging its finished episodes, checkpointing every ``chunk_env_steps`` and expor
 is ``checkpoint.pt``: the learner's module and optimiser state as tensors and the step counters
 (``policies.safe_checkpoint``), never RLlib's own pickled checkpoint folder, so resuming runs no code from the
 run folder. ``env_factory(index)`` makes runner
-``index``'s ParallelEnv; this module imports no env.
+``index``'s ParallelEnv; this module imports no env (of the env, only its
+observation layout).
 """
 
 from __future__ import annotations
@@ -124,7 +125,7 @@ def train_rllib(env_factory: Callable[[int], object], config: TrainConfig, out: 
 
     from policies.files import save_policy  # noqa: PLC0415
     from policies.network import NetworkConfig  # noqa: PLC0415
-    from policies.observation import MAP_CHANNELS  # noqa: PLC0415
+    from openmulti_env.environment.layout import MAP_CHANNELS  # noqa: PLC0415
     from policies.rllib_module import CommRLModule, export_module  # noqa: PLC0415
 
     if config.action_form != "entries":

@@ -18,7 +18,7 @@ def tiny_scene():
 
 @pytest.fixture(scope="session")
 def tiny_world(tiny_scene):
-    from openmulti_env.presets import world_config
+    from openmulti_env.experiment.presets import world_config
     from openmulti_env.world import World
 
     world = World.build(tiny_scene, seed=0, config=world_config("tiny", 2))

@@ -57,7 +57,7 @@ def test_held_out_frames_stay_out_of_the_map_and_are_scored(tmp_path, tiny_world
     from dataclasses import replace
 
     from mapping.team import RoundPlan, Team, TeamConfig
-    from openmulti_env.presets import mapping_config
+    from openmulti_env.experiment.presets import mapping_config
     from openmulti_env.runs.run import run
     from openmulti_env.world.stream import world_streams, world_vocabulary
 

@@ -107,7 +107,7 @@ def test_degree_messages_round_trip_and_malformed_ones_are_refused():
 
 
 def _team(tiny_world, consistency: ConsistencyConfig, success: float = 1.0) -> Team:
-    from openmulti_env.presets import mapping_config
+    from openmulti_env.experiment.presets import mapping_config
     from openmulti_env.world.stream import world_streams, world_vocabulary
 
     streams = world_streams(tiny_world, seed=0, segmentation_errors=False)

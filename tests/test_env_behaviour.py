@@ -10,7 +10,7 @@ from openmulti_env import parallel_env
 from openmulti_env.environment.actions import ActionError
 from openmulti_env.environment.config import FIELD_NAMES
 from openmulti_env.environment import INFO_KEYS
-from policies.observation import MAP_CHANNELS, agent_feature
+from openmulti_env.environment.layout import MAP_CHANNELS, agent_feature
 from openmulti_env.world.cache import WorldCacheWarning, clear_world_cache, world_cache_dir
 
 

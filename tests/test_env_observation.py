@@ -13,7 +13,7 @@ from openmulti_env.environment.config import env_config
 from openmulti_env.world.cache import cached_world
 from openmulti_env.world.scene import Instance, colored_box
 from openmulti_env.world.visibility import compute_observable_surface, free_space_viewpoints
-from policies.observation import LINK_FEATURES, MAP_CHANNELS, agent_feature, comm_size, link_feature
+from openmulti_env.environment.layout import LINK_FEATURES, MAP_CHANNELS, agent_feature, comm_size, link_feature
 
 
 @pytest.fixture(scope="module")

@@ -13,7 +13,7 @@ from mapping.pipeline.records import as_record
 from openmulti_env.experiment import (ConfigError, Experiment, checkpoint_identity, experiment, read_checkpoint_identity,
                                       read_config, resolved_team, tree_record, write_config)
 from openmulti_env.experiment.options import tree_fields
-from openmulti_env.presets import PRESET_NAMES, get_preset
+from openmulti_env.experiment.presets import PRESET_NAMES, get_preset
 from openmulti_env.runs.cli import build_parser, main
 
 

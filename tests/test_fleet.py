@@ -15,7 +15,7 @@ from mapping.team import ConsistencyConfig, RoundPlan, Team, TeamConfig
 
 
 def _team(tiny_world, learner: str, algorithm: str) -> Team:
-    from openmulti_env.presets import mapping_config
+    from openmulti_env.experiment.presets import mapping_config
     from openmulti_env.world.stream import world_streams, world_vocabulary
 
     streams = world_streams(tiny_world, seed=0, segmentation_errors=False)

@@ -11,7 +11,7 @@ import pytest
 from openmulti_env.environment.rewards import GAIN_FLOOR, BaselineEpisodes, step_rewards
 from policies import make_policy
 from policies.network import CommPolicyNetwork, NetworkConfig
-from policies.observation import MAP_CHANNELS, comm_size
+from openmulti_env.environment.layout import MAP_CHANNELS, comm_size
 
 
 def settings(**kw):

@@ -13,7 +13,7 @@ from openmulti_env.environment.observation import slot_instances
 from openmulti_env.experiment import ConfigError
 from policies import PolicyError, make_policy, parse_policy
 from policies.instance_novelty import InstanceNoveltyPolicy, InstanceNoveltySettings, last_round
-from policies.observation import AGENT_FEATURES, INSTANCE_FEATURES, LINK_FEATURES, LINK_STATE
+from openmulti_env.environment.layout import AGENT_FEATURES, INSTANCE_FEATURES, LINK_FEATURES, LINK_STATE
 
 
 @pytest.fixture(scope="module")
@@ -26,7 +26,7 @@ def test_range_and_capacity_make_the_round_links():
     up = links_in_range(positions, 2.0)
     assert up.tolist() == [[False, True, False], [True, False, False], [False, False, False]]
     assert links_in_range(positions, None).sum() == 6
-    limits = round_limits(positions, 2.0, 0.5)
+    limits = round_limits(positions, 2.0, 0.5e6)
     assert limits.room_bytes[0, 1] == 0.5e6 and limits.room_bytes[0, 2] == 0.0
     assert limits.as_dict()["up"][0] == [0, 1, 0]
     paths = [np.array([[0.0, 0, 0], [1, 0, 0]]), np.array([[3.0, 0, 0], [1.5, 0, 0], [1.5, 0, 0]])]

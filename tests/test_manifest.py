@@ -52,7 +52,7 @@ def test_manifest_builds_a_room_from_messy_meshes(tmp_path):
 
 
 def test_manifest_scene_renders_and_culls(tmp_path):
-    from openmulti_env.presets import world_config
+    from openmulti_env.experiment.presets import world_config
     from openmulti_env.world import World
 
     _write_meshes(tmp_path / "meshes")

@@ -144,7 +144,7 @@ def test_a_space_round_trips_on_the_wire_and_a_mismatched_one_is_refused_naming_
 
 def test_a_matched_instance_takes_the_peers_observations(tiny_world):
     from mapping.team import RoundPlan, Team, TeamConfig, ConsistencyConfig
-    from openmulti_env.presets import mapping_config
+    from openmulti_env.experiment.presets import mapping_config
     from openmulti_env.world.stream import world_streams, world_vocabulary
 
     streams = world_streams(tiny_world, seed=0, segmentation_errors=False)

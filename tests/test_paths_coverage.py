@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from openmulti_env.presets import world_config
+from openmulti_env.experiment.presets import world_config
 from openmulti_env.world import REPLICA_LIKE_PRESETS, World
 from openmulti_env.world.visibility import compute_observable_surface, free_space_viewpoints
 

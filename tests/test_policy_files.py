@@ -12,7 +12,7 @@ import pytest
 from policies import PolicyError, make_policy, parse_policy
 from policies.files import load_policy, policy_paths, save_policy
 from policies.network import CommPolicyNetwork, NetworkConfig
-from policies.observation import AGE_SCALE, AGENT_FEATURES, LINK_FEATURES, MAP_CHANNELS, comm_size
+from openmulti_env.environment.layout import AGE_SCALE, AGENT_FEATURES, LINK_FEATURES, MAP_CHANNELS, comm_size
 
 
 def observation(num_agents=3, size=16, budget_left=1.0, progress=0.5, **links):

@@ -25,7 +25,7 @@ def local_ray():
 
 
 def _team(tiny_world, processes):
-    from openmulti_env.presets import mapping_config
+    from openmulti_env.experiment.presets import mapping_config
     from openmulti_env.world.stream import world_streams, world_vocabulary
 
     streams = world_streams(tiny_world, seed=0, segmentation_errors=False)

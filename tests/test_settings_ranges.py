@@ -18,7 +18,7 @@ from mapping.safe_parse import MAX_DEPTH, ParseError, load_json, load_yaml, pars
 from openmulti_env.experiment import ConfigError, Experiment, experiment, experiment_from_record, read_config, tree_record
 from openmulti_env.experiment import memory
 from openmulti_env.experiment.options import typed_overrides
-from openmulti_env.presets import PRESET_NAMES, get_preset
+from openmulti_env.experiment.presets import PRESET_NAMES, get_preset
 from openmulti_env.runs.cli import main
 from openmulti_env.world.manifest import ManifestError, load_manifest_scene
 

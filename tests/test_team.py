@@ -325,7 +325,7 @@ class _CountingStream:
 
 
 def _tiny_team(tiny_world, **overrides):
-    from openmulti_env.presets import mapping_config
+    from openmulti_env.experiment.presets import mapping_config
     from openmulti_env.world.stream import world_streams, world_vocabulary
 
     streams = [_CountingStream(s) for s in world_streams(tiny_world, seed=0, segmentation_errors=False)]

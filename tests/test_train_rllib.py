@@ -17,7 +17,7 @@ from gymnasium import spaces  # noqa: E402
 
 from policies import make_policy  # noqa: E402
 from policies.safe_checkpoint import UnsafeCheckpointError, tensors_only  # noqa: E402
-from policies.observation import MAP_CHANNELS, comm_size  # noqa: E402
+from openmulti_env.environment.layout import MAP_CHANNELS, comm_size  # noqa: E402
 
 
 def _module(actions: int = 6, agents: int = 4):

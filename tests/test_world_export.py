@@ -12,7 +12,7 @@ import trimesh
 from mapping.data import load_dataset
 from mapping.data.labels import dataset_categories
 from openmulti_env.runs.cli import main
-from openmulti_env.presets import world_config
+from openmulti_env.experiment.presets import world_config
 from openmulti_env.world import World
 from openmulti_env.world.export import export_world
 from openmulti_env.world.sensor import SensorConfig

@@ -20,13 +20,12 @@ from scipy.spatial import cKDTree
 
 from mapping.perception.codebook import CodeBook
 from mapping.perception.text_encoder import TextEncoder, shared_text_encoder
+from mapping.perception.vocabulary import CATEGORY_PROMPT, category_prompts
 
 __all__ = [
-    "CATEGORY_PROMPT",
     "UNKNOWN_LABEL",
     "ClassRow",
     "SemanticMetrics",
-    "category_prompts",
     "ground_truth_semantic_points",
     "per_class_table",
     "score_semantics",
@@ -34,19 +33,8 @@ __all__ = [
     "zero_shot_labels",
 ]
 
-CATEGORY_PROMPT = "a {} in a room"
-"""How a category name becomes text before SBERT encodes it. Measured on the 214 metadata captions of
-the eight scene presets against the 34 simulator categories (benchmarks/bench_retrieval.py): bare name
-79.0 % correct, "a {}" 82.2 %, "a photo of a {}" 88.3 %, "a {} in a room" 89.7 %. The rest are
-near-synonym classes (plant / potted_plant, picture / window_frame, pillow / sofa)."""
-
 UNKNOWN_LABEL = "unknown"
 """Label of reconstructed points whose instance has no zero-shot label."""
-
-
-def category_prompts(category_names: Sequence[str], prompt: str = CATEGORY_PROMPT) -> list[str]:
-    """Texts to encode for category names: underscores become spaces ("coffee_table" -> "coffee table")."""
-    return [prompt.format(str(name).replace("_", " ")) for name in category_names]
 
 
 def _unit_rows(x: np.ndarray, what: str) -> np.ndarray:

@@ -27,7 +27,7 @@ from mapping.data import DatasetError, Frame, RGBDDataset, load_dataset, split_c
 from mapping.data.checks import PoseCheck, check_depth_unit, check_poses, pose_conflict_note
 from mapping.data.labels import dataset_categories
 from mapping.evaluate.reference import TSDFConfig, TSDFReference
-from mapping.perception import FrameSegmentation, TextEncoder
+from mapping.perception import FrameSegmentation, TextEncoder, Vocabulary
 from mapping.perception.front_end import encode_segments
 from mapping.perception.geometric_segmenter import GeometricSegmenter, GeometricSegmenterConfig, instance_caption
 from mapping.perception.image_encoder import ImageTextEncoder
@@ -35,7 +35,6 @@ from mapping.perception.segmenter import DatasetMaskSegmenter
 from mapping.pointcloud import voxel_downsample
 from mapping.evaluate.visibility import cull_to_viewpoints
 from mapping.pipeline.source import CameraViews, GroundTruth, SourceRecord
-from mapping.team import Vocabulary
 
 VIEWPOINT_SPACING_M = 0.25
 """Camera centres closer than this are one viewpoint of the culling (the free-space grid is 0.5 m)."""

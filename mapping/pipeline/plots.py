@@ -11,18 +11,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-
-def save_figure(fig, path: str | Path, title: str = "", dpi: int = 100) -> Path:
-    """Title, tighten, write the PNG (creating its folder) and free the figure."""
-    if title:
-        fig.suptitle(title)
-    fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=dpi)
-    plt.close(fig)
-    return path
-
+from mapping.figures import save_figure  # noqa: E402
 
 SURFACE_CLASS_COLOURS = {"missed": "tab:blue", "right": "tab:green", "invented": "tab:red"}
 

@@ -26,6 +26,7 @@ from mapping.model.checkpoint import CheckpointError
 from mapping.evaluate import SampledSurface
 from mapping.pipeline.records import as_record, forget_stale_checkpoints, plain, write_json_atomic
 from mapping.pipeline.scoring import DEPTH_CHECK_EVERY, mean_metrics, score_member, team_semantics
+from mapping.pipeline.settings import RunSettings
 from mapping.pipeline.source import GroundTruth, Source, SourceRecord
 from mapping.runtime import set_threads, torch_threads
 from mapping.team import AgentSnapshot, ChannelConfig, RoundPlan, Team, TeamConfig
@@ -45,38 +46,17 @@ NOT_EVALUATED_NOTE = ("Not evaluated (--no-evaluation): only what the rounds cos
                       "resumes after the last round and scores the maps.")
 
 
-@dataclass
+@dataclass(frozen=True)
 class RunConfig:
-    """How a run goes, beyond what its source and team settings say."""
+    """How a run goes: the tree's job settings as they are, and what the run resolved around them."""
 
-    out: Path
-    """Folder of the outputs and checkpoints."""
+    job: RunSettings
+    """Output folder, device, threads, workers (resolved: a number), processes, learner, checkpoints, scoring."""
     team: TeamConfig
+    """The team the run starts (``openmulti_env.experiment.resolved_team``)."""
     channel: ChannelConfig = field(default_factory=ChannelConfig)
     seed: int = 0
     """Drives network initialisation, ray sampling and channel draws (and the scoring's samples)."""
-    device: str = "auto"
-    workers: int = 1
-    """Agents trained side by side on threads (``Team(workers=)``; results do not depend on it)."""
-    processes: str | None = None
-    """``"ray"``: every agent in a process of its own (``Team(processes=)``; the same maps on CPU)."""
-    learner: str = "per_agent"
-    """``"fleet"``: every agent's iterations batched into one computation per step (``Team(learner=)``)."""
-    threads: int | None = None
-    """Torch threads of the evaluation (None: all cores)."""
-    checkpoint_every: int = 5
-    """Save the team every this many rounds (an interrupted run resumes from it)."""
-    max_rounds: int | None = None
-    """Stop after this many rounds (None: when the streams end)."""
-    three_cullings: bool = False
-    """Also score NICE-SLAM-culled (where the source has the cameras) and unculled."""
-    culling_viewpoint_stride: int = 1
-    """Maps are culled to what every this-many-th of the ground truth's viewpoints sees (1: all)."""
-    plots: bool = True
-    evaluate: bool = True
-    """False: map only (rounds, bytes, the final checkpoint); the same command again with it scores the maps
-    (it resumes after the last round, so only the evaluation runs)."""
-    progress: bool = True
     title: str = ""
     """Title of the pictures (e.g. the scene and policy)."""
 
@@ -108,7 +88,7 @@ class RunResult:
     extra: dict = field(default_factory=dict)
     """Source-specific fields (e.g. ``map``, ``ground_truth``, ``masks``)."""
     evaluated: bool = True
-    """False: the maps were not scored (``RunConfig.evaluate``); ``agents``, ``mean`` and ``team`` are empty."""
+    """False: the maps were not scored (``RunSettings.evaluate``); ``agents``, ``mean`` and ``team`` are empty."""
 
     def as_json(self) -> dict:
         """``metrics.json``."""
@@ -123,14 +103,14 @@ def run_team(source: Source, record: SourceRecord, config: RunConfig, schedule: 
 
     ``start`` is the ``time.perf_counter()`` the run's wall time counts from (default: now)."""
     start = time.perf_counter() if start is None else start
-    out = Path(config.out)
+    out = Path(config.job.out)
     # checkpoints must come from the same team settings too, defaults included: a run made before a
     # default changed is mapped again, not resumed into a mix of two versions
     identity = record.settings if record.identity is None else record.identity
     forget_stale_checkpoints(out, {**identity, "team": as_record(asdict(config.team))}, record.read_identity)
     team = Team(source.streams(), config.team, source.vocabulary(), seed=config.seed, channel=config.channel,
-                device=config.device, workers=config.workers, processes=config.processes,
-                learner=config.learner)
+                device=config.job.device, workers=config.job.workers, processes=config.job.processes,
+                learner=config.job.learner)
     try:
         reports = run_rounds(team, schedule, out / "checkpoints" / "team.pt", config)
     except BaseException:
@@ -138,8 +118,8 @@ def run_team(source: Source, record: SourceRecord, config: RunConfig, schedule: 
         raise
     finally:
         team.close()  # the worker threads (the team stays usable for evaluation)
-    set_threads(config.threads)  # evaluation runs on this thread alone: give it every core again
-    gt = source.ground_truth(config.seed) if config.evaluate else None
+    set_threads(config.job.threads)  # evaluation runs on this thread alone: give it every core again
+    gt = source.ground_truth(config.seed) if config.job.evaluate else None
     try:
         scores = (evaluate_team(source, record, gt, team, config) if gt is not None
                   else {"agents": {}, "mean": {}, "team": {}})
@@ -149,7 +129,7 @@ def run_team(source: Source, record: SourceRecord, config: RunConfig, schedule: 
     result = RunResult(**scores, **round_costs(team, reports), wall_s=time.perf_counter() - start,
                        config=record.settings,
                        resolved={"team": plain(asdict(config.team)), **record.described},
-                       notes=" ".join(record.notes + [note]), extra=record.results, evaluated=config.evaluate)
+                       notes=" ".join(record.notes + [note]), extra=record.results, evaluated=config.job.evaluate)
     write_outputs(out, result, reports, config)
     return result
 
@@ -163,10 +143,10 @@ def run_rounds(team: Team, schedule: Schedule, checkpoint: Path, config: RunConf
             print(f"[openmulti] resumed the team after round {team.round_index} from {checkpoint}")
         except CheckpointError as exc:
             print(f"[openmulti] ignoring unusable checkpoint ({exc}); starting again")
-    total = team.rounds_total() if config.max_rounds is None else min(config.max_rounds, team.rounds_total())
-    every = config.checkpoint_every
+    total = team.rounds_total() if config.job.max_rounds is None else min(config.job.max_rounds, team.rounds_total())
+    every = config.job.checkpoint_every
     snapshots = team.snapshots()
-    with tqdm(total=total, initial=team.round_index, desc="rounds", unit="round", disable=not config.progress) as bar:
+    with tqdm(total=total, initial=team.round_index, desc="rounds", unit="round", disable=not config.job.progress) as bar:
         while not team.done and team.round_index < total:
             report = team.round(schedule(team, snapshots))
             snapshots = report.agents
@@ -175,7 +155,7 @@ def run_rounds(team: Team, schedule: Schedule, checkpoint: Path, config: RunConf
                             instances=sum(s.instances for s in snapshots))
             bar.update(1)
             last = team.round_index == total
-            if (every and (team.round_index % every == 0 or last)) or (last and not config.evaluate):
+            if (every and (team.round_index % every == 0 or last)) or (last and not config.job.evaluate):
                 # a run that is not evaluated keeps its last round whatever checkpoint_every says: scoring resumes it
                 team.save(checkpoint, extra={"reports": reports})
     return reports
@@ -206,8 +186,8 @@ class TakingTurns:
 def evaluate_team(source: Source, record: SourceRecord, gt: GroundTruth, team: Team, config: RunConfig) -> dict:
     """Mesh, cull and score every agent's own map against ``gt``; the team map's semantics; code books;
     pictures."""
-    out, seed = Path(config.out), config.seed
-    views = source.camera_views(config.team.mapping.keyframe_every) if config.three_cullings else None
+    out, seed = Path(config.job.out), config.seed
+    views = source.camera_views(config.team.mapping.keyframe_every) if config.job.three_cullings else None
     (out / "meshes").mkdir(parents=True, exist_ok=True)
     gt.mesh.export(out / "meshes" / gt.file_name)
     per_agent, maps = {}, []
@@ -224,21 +204,21 @@ def evaluate_team(source: Source, record: SourceRecord, gt: GroundTruth, team: T
     def score(member):
         frames, heldout = inputs[member.name]
         return score_member(member, gt, views, seed, out, text_encoder, image_encoder, record.caption, frames=frames,
-                            heldout=heldout, reference=reference, viewpoint_stride=config.culling_viewpoint_stride)
+                            heldout=heldout, reference=reference, viewpoint_stride=config.job.culling_viewpoint_stride)
 
-    side_by_side = max(1, min(config.workers, len(members)))
-    with torch_threads(config.threads, workers=side_by_side), \
+    side_by_side = max(1, min(config.job.workers, len(members)))
+    with torch_threads(config.job.threads, workers=side_by_side), \
             ThreadPoolExecutor(side_by_side, thread_name_prefix="scoring") as pool:
         scored = list(tqdm(pool.map(score, members), total=len(members), desc="evaluating", unit="agent",
-                           disable=not config.progress))
+                           disable=not config.job.progress))
     for member, (metrics, own) in zip(members, scored):
         per_agent[member.name] = metrics
         maps.append(own)
-        if config.plots:  # matplotlib is not thread-safe: the pictures in turn
+        if config.job.plots:  # matplotlib is not thread-safe: the pictures in turn
             save_rendered_views(out / "plots" / f"rendered_views_{member.name}.png", source, member,
                                 f"{source.name} {member.name}: sensor vs map", own.mesh)
     union = team_semantics(maps, gt.semantic, out)
-    if config.plots:
+    if config.job.plots:
         from mapping.pipeline.plots import save_reconstruction_views, save_semantic_classes  # noqa: PLC0415
 
         save_reconstruction_views(out / "plots" / "reconstruction_top_down.png", gt.mesh, [m.scored for m in maps],
@@ -271,7 +251,7 @@ def write_outputs(out: Path, result: RunResult, reports: list[dict], config: Run
     """``rounds.json``, ``metrics.json`` and (with ``plots``) the bytes-per-round picture."""
     write_json_atomic(out / "rounds.json", {"rounds": reports})
     write_json_atomic(out / "metrics.json", result.as_json())
-    if config.plots:
+    if config.job.plots:
         from mapping.pipeline.plots import save_round_bytes  # noqa: PLC0415
 
         save_round_bytes(out / "plots" / "bytes_per_round.png", reports, config.title)

@@ -15,7 +15,8 @@ import trimesh
 from mapping.data.frame import Frame, Intrinsics
 from mapping.perception.image_encoder import ImageTextEncoder
 from mapping.perception.text_encoder import TextEncoder
-from mapping.team import AgentStream, Vocabulary
+from mapping.perception.vocabulary import Vocabulary
+from mapping.team import AgentStream
 
 
 @dataclass

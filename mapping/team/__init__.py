@@ -17,7 +17,7 @@
 
 from mapping.team.channel import Channel, Delivery
 from mapping.team.config import ConsistencyConfig, ExchangeConfig, TeamConfig
-from mapping.team.member import AgentStream, TeamMember, Vocabulary
+from mapping.team.member import AgentStream, TeamMember
 from mapping.team.messages import (InstancePayload, MessageError, MessageRules, ParameterMessage, PointCloudMessage,
                                    RayMessage, from_bytes, to_bytes)
 from mapping.team.report import (AgentSnapshot, AlignmentCounts, ConsistencyTerms, DeliveryRecord, LinkState, LossTerms,
@@ -27,4 +27,4 @@ from mapping.team.team import ChannelConfig, PlanError, RoundPlan, Team
 __all__ = ["AgentSnapshot", "AlignmentCounts", "ConsistencyTerms", "DeliveryRecord", "LinkState", "LossTerms", "PeerKnowledge",
            "AgentStream", "Channel", "ChannelConfig", "ConsistencyConfig", "Delivery", "ExchangeConfig",
            "InstancePayload", "MessageError", "MessageRules", "ParameterMessage", "PlanError", "PointCloudMessage", "RayMessage", "RoundPlan",
-           "RoundReport", "Team", "TeamConfig", "TeamMember", "Vocabulary", "from_bytes", "to_bytes"]
+           "RoundReport", "Team", "TeamConfig", "TeamMember", "from_bytes", "to_bytes"]

@@ -45,10 +45,10 @@ def links_in_range(positions: np.ndarray, range_m: float | None) -> np.ndarray:
     return (distance <= range_m) & ~np.eye(n, dtype=bool)
 
 
-def round_limits(positions: np.ndarray, range_m: float | None, mb_per_round: float | None) -> LinkLimits:
-    """The links of a round from the agents' positions and the two limits."""
+def round_limits(positions: np.ndarray, range_m: float | None, capacity_bytes: float | None) -> LinkLimits:
+    """The links of a round from the agents' positions and the two limits (``ChannelConfig.link_capacity_bytes``)."""
     up = links_in_range(positions, range_m)
-    room = np.full(up.shape, np.inf if mb_per_round is None else mb_per_round * 1e6)
+    room = np.full(up.shape, np.inf if capacity_bytes is None else capacity_bytes)
     room[~up] = 0.0
     return LinkLimits(up, room)
 

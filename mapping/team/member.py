@@ -25,6 +25,7 @@ from mapping.data.frame import Frame
 from mapping.fusion.online import OnlineFusion
 from mapping.perception.codebook import CodeBook, CodeBookEntry
 from mapping.perception.types import FrameSegmentation
+from mapping.perception.vocabulary import Vocabulary
 from mapping.team.agreement import Agreement, PenaltyReading
 from mapping.team.config import TeamConfig
 from mapping.team.consistency import PairKey
@@ -44,30 +45,6 @@ class AgentStream(Protocol):
     def read(self, index: int) -> tuple[Frame, FrameSegmentation]:
         """Frame ``index`` and its segmentation (caption features filled)."""
         ...
-
-
-@dataclass
-class Vocabulary:
-    """Category names with their encoded prompts; which of them are walls, floor, ceiling."""
-
-    names: list[str]
-    features: np.ndarray  # (C, d) unit rows
-    structure: frozenset[str] = frozenset({"wall", "floor", "ceiling"})
-
-    @staticmethod
-    def from_encoder(names: Sequence[str], text_encoder, structure: Sequence[str] = ("wall", "floor", "ceiling")
-                     ) -> "Vocabulary":
-        """Encode "a {name} in a room" for each name (the zero-shot prompt of ``evaluate.semantic``)."""
-        from mapping.evaluate.semantic import category_prompts  # noqa: PLC0415
-
-        names = list(dict.fromkeys(names))
-        features = np.asarray(text_encoder.encode(category_prompts(names)), np.float32)
-        features /= np.maximum(np.linalg.norm(features, axis=1, keepdims=True), 1e-12)
-        return Vocabulary(names, features, frozenset(structure))
-
-    def label(self, feature: np.ndarray) -> str:
-        """The zero-shot category of a caption feature (cosine to the prompts)."""
-        return self.names[int(np.argmax(self.features @ np.asarray(feature, np.float32)))]
 
 
 @dataclass

@@ -124,8 +124,13 @@ class ChannelConfig:
 
     @property
     def budget_bytes(self) -> float | None:
-        """The budget in bytes (the one place MB become bytes)."""
+        """The budget in bytes (with ``link_capacity_bytes``, the one place MB become bytes)."""
         return None if self.budget_mb is None else self.budget_mb * 1e6
+
+    @property
+    def link_capacity_bytes(self) -> float | None:
+        """What a link carries a round, in bytes (None: no limit)."""
+        return None if self.link_mb_per_round is None else self.link_mb_per_round * 1e6
 
 
 __all__ = ["ChannelConfig", "PlanError", "RoundPlan"]

@@ -20,8 +20,9 @@ from typing import Sequence
 
 import numpy as np
 
+from mapping.perception.vocabulary import Vocabulary
 from mapping.team.config import TeamConfig
-from mapping.team.member import AgentStream, LocalReport, StreamReader, TeamMember, Vocabulary
+from mapping.team.member import AgentStream, LocalReport, StreamReader, TeamMember
 from mapping.team.messages import Message, from_bytes, to_bytes
 from mapping.team.report import AgentSnapshot, AlignmentCounts, ConsistencyTerms
 from mapping.model.topdown import ColumnGrid, ColumnMap

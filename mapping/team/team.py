@@ -26,11 +26,12 @@ import numpy as np
 from mapping.model.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
 from mapping.model.banks import param_counts
 from mapping.model.fleet import ExtraLoss, fleet_train
+from mapping.perception.vocabulary import Vocabulary
 from mapping.team.channel import DELIVERED, DROPPED, OVER_BUDGET, Channel
 from mapping.team.config import TeamConfig
 from mapping.team.plan import ChannelConfig, PlanError, RoundPlan
 from mapping.team.links import LinkLimits, round_limits
-from mapping.team.member import AgentStream, TeamMember, Vocabulary
+from mapping.team.member import AgentStream, TeamMember
 from mapping.team.messages import DegreeMessage, MessageRules, ParameterMessage, RayMessage, to_bytes
 from mapping.team.report import (AgentSnapshot, AlignmentCounts, ConsistencyTerms, DeliveryRecord, LossTerms,
                                  RoundReport)
@@ -243,7 +244,7 @@ class Team:
         for index, read in enumerate(reads):
             if read[0]:
                 self.positions[index] = read[0][-1][0].pose[:3, 3]
-        return round_limits(self.positions, cfg.link_range_m, cfg.link_mb_per_round)
+        return round_limits(self.positions, cfg.link_range_m, cfg.link_capacity_bytes)
 
     def fleet_train(self, iterations: list[int], extras: list[ExtraLoss]) -> tuple[list[float], list[float]]:
         """Every member's iterations batched (``mapping.model.fleet.fleet_train``) in the calling thread, on the

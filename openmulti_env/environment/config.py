@@ -13,9 +13,10 @@ from __future__ import annotations
 from mapping.runtime import available_cores
 from openmulti_env.experiment import ALIASES, ConfigError, Experiment, experiment
 from openmulti_env.experiment.overrides import leaf_paths
-from openmulti_env.presets import PRESET_NAMES
+from openmulti_env.experiment.presets import PRESET_NAMES
+from openmulti_env.experiment.tree import DEFAULT_PRESETS
 
-DEFAULT_PRESET = "rl"
+DEFAULT_PRESET = DEFAULT_PRESETS["env"]
 ENV_THREADS = 1
 """The env's torch threads unless given (``run.threads``): its batches are small, several envs often share a
 machine, and a second thread waiting on a busy core slowed a ``tiny`` step 30x here."""

@@ -1,5 +1,5 @@
 """Each agent's observation, from its own knowledge only: its frames, its fields, the messages it sent and
-received. Layout and channel meanings: ``policies.observation`` (the policies read it by those names).
+received. Layout and channel meanings: ``openmulti_env.environment.layout`` (policies read it by those names).
 
 ``map`` is built here from the agent's snapshot (``mapping.team.AgentSnapshot``) and its own fields read on
 a fixed voxel grid over the room's box (``mapping.model.topdown``); ``comm`` from the snapshot's per-peer link
@@ -10,13 +10,16 @@ cell's samples an agent's map reproduces) feeds ``state()`` for centralised crit
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from mapping.team import AgentSnapshot
 from mapping.model.topdown import ColumnGrid, ColumnMap
-from policies.observation import (AGENT_FEATURES, INSTANCE_FEATURES, LINK_FEATURES, LINK_STATE, MAP_CHANNELS,
-                                  SIZE_SCALE_M, age_feature)
+if TYPE_CHECKING:
+    from openmulti_env.experiment.tree import EnvSettings, Experiment
+from openmulti_env.environment.layout import (AGENT_FEATURES, INSTANCE_FEATURES, LINK_FEATURES, LINK_STATE,
+                                              MAP_CHANNELS, SIZE_SCALE_M, age_feature)
 
 OBSERVATION_CHANNELS = MAP_CHANNELS
 DEPTH_STRIDE = 4
@@ -143,7 +146,7 @@ def comm_vector(snapshot: AgentSnapshot, num_agents: int, budget_share: float) -
 
 
 def link_rows(snapshot: AgentSnapshot, num_agents: int, capacity_bytes: float | None) -> np.ndarray:
-    """The ``links`` entry: (N - 1, ``LINK_STATE``) per peer in action order (``policies.observation``)."""
+    """The ``links`` entry: (N - 1, ``LINK_STATE``) per peer in action order (``layout``)."""
     out = np.zeros((num_agents - 1, len(LINK_STATE)), np.float32)
     for k, peer in enumerate(j for j in range(num_agents) if j != snapshot.index):
         up = snapshot.links_up.get(peer, True)
@@ -196,6 +199,19 @@ def _u8(x: np.ndarray) -> np.ndarray:
     return np.round(np.clip(x, 0.0, 1.0) * 255).astype(np.uint8)
 
 
+def observed_slots(env: "EnvSettings", action_form: str) -> int:
+    """Instance slots per peer in the observation: ``env.instance_slots`` in the instances action form, none in the
+    others (the env's spaces and ``openmulti run``'s observing policies follow this one rule)."""
+    return env.instance_slots if action_form == "instances" else 0
+
+
+def team_observer(tree: "Experiment", room_size_m, action_form: str) -> "TeamObserver":
+    """The observation builder of ``tree``'s episode in a room of ``room_size_m`` (x, y, z) from the origin: its map
+    size, byte budget, link capacity and instance slots (``observed_slots``)."""
+    return TeamObserver(np.zeros(3), np.asarray(room_size_m, float), tree.env.map_size, tree.channel.budget_bytes,
+                        tree.channel.link_capacity_bytes, observed_slots(tree.env, action_form))
+
+
 class TeamObserver:
     """Every agent's observation over a team's rounds: the env's and ``openmulti run``'s one builder.
 
@@ -225,7 +241,7 @@ class TeamObserver:
         self.columns = team.column_maps(self.column_grid)
 
     def observe(self, snapshot: AgentSnapshot) -> dict[str, np.ndarray]:
-        """The agent's ``{"map", "comm", "links"[, "instances"]}`` observation (``policies.observation``)."""
+        """The agent's ``{"map", "comm", "links"[, "instances"]}`` observation (``layout``)."""
         boxes = [box for peer in snapshot.peers.values() for box in peer.held_object_boxes]
         known = {p: k.position for p, k in snapshot.peers.items() if k.position is not None}
         peers = peer_plane(self.grid, known, snapshot.rounds - 1)

@@ -37,11 +37,11 @@ the rest waits.
 ### Observations
 From the agent's own knowledge only: its frames, its fields and the messages it sent and received; never
 ground truth (a test changes the world where an agent never looks and checks that its observations stay
-the same bit for bit). A `Dict` (layout and meanings in `policies.observation`, which policies read by name):
-`map`, a top-down map of the room (rows +y, columns +x, channels last): `map_height` (top of what its own
-fields hold in the column, queried on a fixed 5 cm voxel grid over the room's box, the ceiling band left
-out, only near surface its instances observed), `map_decided` (share of the column its fields decide where
-its instances looked), `observed` (cells its own depth has hit),
+the same bit for bit). A `Dict` (layout and meanings in `openmulti_env.environment.layout`, which policies
+read by name): `map`, a top-down map of the room (rows +y, columns +x, channels last): `map_height` (top
+of what its own fields hold in the column, queried on a fixed 5 cm voxel grid over the room's box, the
+ceiling band left out, only near surface its instances observed), `map_decided` (share of the column its
+fields decide where its instances looked), `observed` (cells its own depth has hit),
 `received` (footprints of the object instances held from peers), `own_path` (path 128, current position
 255), `peer_poses` (peers' last positions known from their ray messages, fading with age); `comm`, per
 peer in action order what its side of the link knows (`holds`, `up_to_date`, `change` of its map since
@@ -90,7 +90,7 @@ parallel_env(scene=None, num_agents=None, preset="rl", seed=None, render_mode=No
 ```
 `scene`: a scene preset name, `random:SEED` or a manifest path (default: the preset's, room0; `rl_tiny`:
 the small `tiny` room). `num_agents`: 2-8 (default: the preset's). `preset`: one of the table in
-`openmulti_env.presets`, the same episodes as `openmulti run --preset`: `rl` (the default, RL-sized: 24
+`openmulti_env.experiment.presets`, the same episodes as `openmulti run --preset`: `rl` (the default, RL-sized: 24
 steps of about a second), `rl_tiny` (8 steps, for tests), `tiny`, `demo`, `fast`, `full` (the paper's).
 `seed`: the world's seed. `render_mode`: None or `rgb_array` (`human` is accepted and draws nothing:
 the env is headless). `comm_budget_mb`: megabytes each agent may send per episode. `reward`: `team` or
@@ -125,14 +125,14 @@ from mapping.perception import shared_text_encoder
 from mapping.runtime import torch_threads
 from mapping.team import Team
 from openmulti_env.environment.actions import ActionError, action_size, actions_to_plan
-from openmulti_env.environment.config import env_config, env_workers
+from openmulti_env.environment.config import DEFAULT_PRESET, env_config, env_workers
 from openmulti_env.experiment import Experiment
 from openmulti_env.environment.rewards import EpisodeRewards, RewardBaselines, play_fixed
 from openmulti_env.environment.render import team_picture
-from openmulti_env.environment.observation import ProbeRaster, TeamObserver, slot_instances
+from openmulti_env.environment.observation import ProbeRaster, observed_slots, slot_instances, team_observer
 from openmulti_env.world.cache import cached_world
 from openmulti_env.world.stream import RenderCache, world_streams, world_vocabulary
-from policies.observation import INSTANCE_FEATURES, LINK_STATE, MAP_CHANNELS, comm_size
+from openmulti_env.environment.layout import INSTANCE_FEATURES, LINK_STATE, MAP_CHANNELS, comm_size
 
 INFO_KEYS = ("completion_ratio", "completion_gain", "bytes_sent", "bytes_received", "bytes_sent_total",
              "budget_left_mb", "messages_delivered", "messages_dropped", "messages_refused", "instances",
@@ -146,7 +146,7 @@ class OpenMultiParallelEnv(ParallelEnv, EzPickle):
     metadata = {"name": "openmulti_v0", "render_modes": list(RENDER_MODES), "render_fps": 2,
                 "is_parallelizable": True}
 
-    def __init__(self, scene: str | None = None, num_agents: int | None = None, preset: str = "rl",
+    def __init__(self, scene: str | None = None, num_agents: int | None = None, preset: str = DEFAULT_PRESET,
                  seed: int | None = None, render_mode: str | None = None, comm_budget_mb: float | None = None,
                  reward: str = "team", max_cycles: int | None = None, **overrides):
         EzPickle.__init__(self, scene=scene, num_agents=num_agents, preset=preset, seed=seed, render_mode=render_mode,
@@ -173,7 +173,7 @@ class OpenMultiParallelEnv(ParallelEnv, EzPickle):
         parts = {"map": spaces.Box(0, 255, (size, size, len(MAP_CHANNELS)), np.uint8),
                  "comm": spaces.Box(0.0, 1.0, (comm_size(n),), np.float32),
                  "links": spaces.Box(0.0, 1.0, (n - 1, len(LINK_STATE)), np.float32)}
-        self._slots = env_cfg.instance_slots if env_cfg.action_form == "instances" else 0
+        self._slots = observed_slots(env_cfg, env_cfg.action_form)
         if self._slots:
             parts["instances"] = spaces.Box(0.0, 1.0, (n - 1, self._slots, len(INSTANCE_FEATURES)), np.float32)
         self._observation_space = spaces.Dict(parts)
@@ -256,9 +256,7 @@ class OpenMultiParallelEnv(ParallelEnv, EzPickle):
         points, normals, ids = self.world.surface.sample_points(cfg.env.probe_points, seed=self.world_seed)
         self._probe_points, self._probe_normals = points, normals
         size = np.asarray(self.world.scene.size_m, float)
-        capacity = None if cfg.channel.link_mb_per_round is None else cfg.channel.link_mb_per_round * 1e6
-        self._observer = TeamObserver(np.zeros(3), size, cfg.env.map_size, cfg.channel.budget_bytes, capacity,
-                                      self._slots)
+        self._observer = team_observer(cfg, size, cfg.env.action_form)
         self._grid = self._observer.grid
         ceiling = [inst.instance_id for inst in self.world.scene.instances if inst.category == "ceiling"]
         self._probes = ProbeRaster(self._grid, points, hidden=np.isin(ids, ceiling))

@@ -17,21 +17,21 @@ from mapping.team.message_checks import MessageRules
 from mapping.team.team import LEARNERS
 from openmulti_env.experiment.memory import memory_problem
 from openmulti_env.experiment.overrides import ConfigError, apply_overrides, leaf_paths, resolve_key
-from openmulti_env.experiment.tree import (DATA_KINDS, PROCESS_MODES, REWARD_BASELINES, REWARD_MODES, TEXT_ENCODERS,
-                                           Experiment)
+from openmulti_env.experiment.tree import (DATA_KINDS, DEFAULT_PRESETS, PROCESS_MODES, REWARD_BASELINES, REWARD_MODES,
+                                           TEXT_ENCODERS, Experiment)
 
 MINIMUMS = ("team.min_keyframes", "team.min_local_steps")
 """Team fields that follow ``world.path.frames_per_agent`` and the mapping unless set explicitly."""
 
 
-def experiment(preset: str = "fast", overrides: Mapping[str, Any] | None = None, base: Experiment | None = None,
+def experiment(preset: str = DEFAULT_PRESETS["run"], overrides: Mapping[str, Any] | None = None, base: Experiment | None = None,
                **more) -> Experiment:
     """The tree of ``preset`` (or ``base``, e.g. a recorded tree) with ``overrides`` and ``more`` applied
     (dotted paths or short spellings, ``openmulti_env.experiment.overrides.ALIASES``), checked whole.
 
     ``None`` values of short spellings keep the preset's value unless None means something for that field
     (``horizon``, ``comm_budget_mb``, ...): the env's keywords default to None."""
-    from openmulti_env.presets import get_preset  # noqa: PLC0415  (the presets are trees of this package)
+    from openmulti_env.experiment.presets import get_preset  # noqa: PLC0415  (the presets are trees of this package)
 
     tree = get_preset(preset) if base is None else base
     given = {k: v for k, v in {**(overrides or {}), **more}.items() if v is not None or admits_none(k)}
@@ -92,7 +92,7 @@ def check(tree: Experiment) -> Experiment:
 
 def preset_problem(tree: Experiment) -> str | None:
     """Why ``tree.preset`` names no preset, or None."""
-    from openmulti_env.presets import PRESET_NAMES  # noqa: PLC0415  (the presets are trees of this package)
+    from openmulti_env.experiment.presets import PRESET_NAMES  # noqa: PLC0415  (the presets are trees of this package)
 
     if tree.preset not in PRESET_NAMES:
         return f"preset must be one of {PRESET_NAMES}, got {tree.preset!r}"

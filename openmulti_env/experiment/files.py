@@ -87,7 +87,7 @@ def experiment_from_record(record: dict) -> Experiment:
 def _from_version1(record: dict) -> Experiment:
     """A record of this version as a tree: it must hold settings and name a known preset; every number is
     checked against its field's range (what needs the whole tree is checked when it is built)."""
-    from openmulti_env.presets import PRESET_NAMES  # noqa: PLC0415  (the presets are trees of this package)
+    from openmulti_env.experiment.presets import PRESET_NAMES  # noqa: PLC0415  (the presets are trees of this package)
 
     settings = {k: v for k, v in record.items() if k not in ("format", "version")}
     if not settings:

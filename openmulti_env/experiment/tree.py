@@ -12,7 +12,7 @@ frozen dataclass tree.
       run         RunSettings               how the job runs: policy, output, threads, checkpoints, scoring
       data        DataSettings              a real RGB-D data set instead of the simulator (``data.path``)
 
-A preset (``openmulti_env.presets``) is one such tree; every entry point (``openmulti run``, ``reproduce``'s
+A preset (``openmulti_env.experiment.presets``) is one such tree; every entry point (``openmulti run``, ``reproduce``'s
 methods, ``parallel_env(**overrides)``, ``openmulti train``) builds its tree as a preset plus overrides
 (``openmulti_env.experiment.overrides``), each option is written once (its docstring is its ``--help``), and
 every run writes its tree whole (``openmulti_env.experiment.files``) so that ``--config`` repeats it.
@@ -24,10 +24,15 @@ from dataclasses import dataclass, field, replace
 
 from mapping.config_fields import NEUTRAL_DEFAULT, bounded
 from mapping.model.sdf_loss import SdfConfig
+from mapping.pipeline.settings import RunSettings
 from mapping.team import ChannelConfig, TeamConfig
 from mapping.team.global_map import GLOBAL_ENCODING_SCALE, GLOBAL_FORMS, GLOBAL_WIDTH
 from openmulti_env.world.world import WorldConfig
 
+DEFAULT_PRESETS = {"run": "fast", "reproduce": "fast", "env": "rl", "train": "rl_small", "study": "fast"}
+"""The preset each entry point starts from when none is given: ``openmulti run`` and ``reproduce`` the measured
+setting, ``parallel_env`` the RL-sized one, ``openmulti train`` the one it learns at, the studies the measured one.
+``Experiment()`` itself is ``fast`` (``openmulti_env.experiment.presets``)."""
 TEXT_ENCODERS = ("mpnet", "minilm")
 REWARD_MODES = ("team", "individual")
 REWARD_BASELINES = ("none", "never_always", "front")
@@ -108,46 +113,6 @@ class EnvSettings:
 
 
 @dataclass(frozen=True)
-class RunSettings:
-    """How the job runs: the schedule, where outputs go, threads and processes, checkpoints, scoring.
-    Nothing here changes the maps but ``policy``."""
-
-    policy: str = "always"
-    """Communication policy: always, never, round_robin, budget, every:K, at:R1,R2,..., rate:Q, bernoulli:P,
-    novelty[:k=v,...], instance_novelty, learned, or a trained policy file (.json beside its .safetensors)."""
-    out: str = "runs/demo"
-    """Output folder (the same folder and settings resume a run)."""
-    device: str = "auto"
-    """Learner device: cpu, cuda or auto (cuda when available)."""
-    threads: int | None = field(default=None, metadata=bounded(1, 1024))
-    """Torch threads (None: all cores, shared by the workers)."""
-    workers: int | None = field(default=None, metadata=bounded(1, 1024))
-    """Agents trained side by side on threads (None: one per core with 1 torch thread each, or 1 when
-    ``threads`` is given); results do not depend on it."""
-    processes: str | None = None
-    """``ray``: every agent maps in a Ray actor of its own, exchanging only serialised messages."""
-    learner: str = "per_agent"
-    """``per_agent`` or ``fleet`` (every agent's steps batched into one computation; the same maps to float
-    tolerance)."""
-    checkpoint_every: int = field(default=5, metadata=bounded(0, 1_000_000))
-    """Save the team every this many rounds (an interrupted run resumes from it)."""
-    max_rounds: int | None = field(default=None, metadata=bounded(0, 1_000_000))
-    """Stop after this many rounds (None: when the paths end), e.g. for smoke tests."""
-    three_cullings: bool = False
-    """Also score every map NICE-SLAM-culled and unculled."""
-    culling_viewpoint_stride: int = field(default=1, metadata=bounded(1, 1_000_000))
-    """Cull each map to what every this-many-th free-space viewpoint sees (1: all, the published figures; 2
-    culls in 0.58x the time and moved completion ratio by at most 0.08 points on make demo's and fast maps, 4
-    in 0.40x by at most 0.19: docs/profile.md). The ground truth keeps every viewpoint."""
-    plots: bool = True
-    """Write the pictures."""
-    evaluate: bool = True
-    """False: map only (rounds, bytes, the final checkpoint); the same run again with it scores the maps."""
-    progress: bool = True
-    """Progress bars."""
-
-
-@dataclass(frozen=True)
 class DataSettings:
     """A real RGB-D data set instead of the simulator (``path`` None: the simulator)."""
 
@@ -172,8 +137,8 @@ class DataSettings:
 class Experiment:
     """Every setting of one experiment (see the module docstring)."""
 
-    preset: str = "fast"
-    """The preset this tree started from (``openmulti_env.presets``); recorded, not read by the parts."""
+    preset: str = DEFAULT_PRESETS["run"]
+    """The preset this tree started from (``openmulti_env.experiment.presets``); recorded, not read by the parts."""
     scene: str = "room0"
     """Scene preset name, ``random:SEED`` or the path of a scene manifest."""
     seed: int = field(default=0, metadata=bounded(0, 2**32 - 1))

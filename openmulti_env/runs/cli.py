@@ -20,7 +20,8 @@ from openmulti_env.experiment import CONFIG_NAME, ConfigError, Experiment, exper
 from openmulti_env.experiment.options import (TRAIN_DEST, add_dataclass_options, add_tree_options, normalise_argv,
                                               spelled_for_command_line,
                                               tree_overrides, typed_overrides)
-from openmulti_env.presets import PRESET_NAMES, get_preset
+from openmulti_env.experiment.presets import PRESET_NAMES, default_preset
+from openmulti_env.experiment.tree import DEFAULT_PRESETS
 from openmulti_env.world.world import MAX_AGENTS
 from policies.train import TrainConfig
 
@@ -61,7 +62,7 @@ def _agents(value: str) -> int:
 
 def cmd_scenes(args: argparse.Namespace) -> int:
     """List presets, or describe one scene with its coverage (and optionally render pictures)."""
-    from openmulti_env.presets import world_config  # noqa: PLC0415
+    from openmulti_env.experiment.presets import world_config  # noqa: PLC0415
     from openmulti_env.world import World, list_presets  # noqa: PLC0415
     from openmulti_env.world.presets import PRESETS  # noqa: PLC0415
 
@@ -127,12 +128,13 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 
 def experiment_from_args(args: argparse.Namespace):
-    """The run's tree: ``--config``'s (or ``--preset``'s, ``fast`` by default) with the command line's overrides."""
+    """The run's tree: ``--config``'s (or ``--preset``'s, ``DEFAULT_PRESETS["run"]`` by default) with the command
+    line's overrides."""
     if args.config is not None and args.preset:
         raise ValueError("give --config FILE or --preset NAME, not both (the file's tree names its preset)")
     overrides = typed_overrides(tree_overrides(args), Experiment)
     base = read_config(args.config) if args.config is not None else None  # --config= is refused, not ignored
-    return experiment(args.preset or "fast", overrides, base=base)
+    return experiment(args.preset or DEFAULT_PRESETS["run"], overrides, base=base)
 
 
 def cmd_query(args: argparse.Namespace) -> int:
@@ -196,7 +198,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("scene", nargs="?", help="preset name, random:SEED or manifest path (none: list the presets)")
     p.add_argument("--agents", type=_agents, default=4, help="agents (one path each)")
     p.add_argument("--seed", type=int, default=0, help="layout and paths seed (0: the canonical room)")
-    p.add_argument("--preset", choices=PRESET_NAMES, default="fast", help="episode size (frames, image size)")
+    p.add_argument("--preset", choices=PRESET_NAMES, default=DEFAULT_PRESETS["run"],
+                   help="episode size (frames, image size)")
     p.add_argument("--json", action="store_true", help="print JSON")
     p.add_argument("--render", metavar="DIR", help="write a top-down picture and a few frames per agent")
     p.add_argument("--export", metavar="DIR", help="write the world as an RGB-D data set (frames of all agents)")
@@ -212,7 +215,7 @@ def build_parser() -> argparse.ArgumentParser:
                    "metrics.json): repeat that run (give --out NEW), the options below change it")
     p.add_argument("--preset", choices=PRESET_NAMES, help="the tree to start from: tiny (smoke), demo (make demo), "
                    "fast (default), full (the paper's), rl_tiny, rl_small, rl (the env's RL-sized ones)")
-    add_tree_options(p, Experiment, shown=get_preset("fast"), short=RUN_SHORT, skip=("preset", "env"))
+    add_tree_options(p, Experiment, shown=default_preset("run"), short=RUN_SHORT, skip=("preset", "env"))
     p.set_defaults(func=cmd_run)
 
     p = sub.add_parser("query", help="open-vocabulary instance retrieval on a finished run", formatter_class=fmt)
@@ -236,7 +239,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--scenes", nargs="+", metavar="S", help="scenes of the grid (default: room0; tradeoff: room0 "
                    "office0 room2; schedules: room1)")
     p.add_argument("--seeds", nargs="+", type=int, default=[0], metavar="K", help="seeds of the grid")
-    p.add_argument("--preset", choices=PRESET_NAMES, default="fast", help="episode size of every run")
+    p.add_argument("--preset", choices=PRESET_NAMES, default=DEFAULT_PRESETS["reproduce"], help="episode size of every run")
     p.add_argument("--agents", type=_agents, default=4, help="agents of the team methods (single_agent has 1)")
     p.add_argument("--out", default="runs/reproduce", metavar="DIR",
                    help="folder of the tables, rows and runs (started again, finished runs are reused; the same "
@@ -288,7 +291,7 @@ def build_parser() -> argparse.ArgumentParser:
                    "HOST:6379 or auto; default: a Ray started on this machine)")
     add_dataclass_options(p, TrainConfig, prefix=TRAIN_DEST, title="PPO and the run's size (policies.train.TrainConfig)",
                           also={"env_steps": "total_env_steps"})
-    add_tree_options(p, Experiment, shown=get_preset("rl_small"), short=TRAIN_SHORT,
+    add_tree_options(p, Experiment, shown=default_preset("train"), short=TRAIN_SHORT,
                      skip=("preset", "scene", "seed", "run", "data", "global_map"))
     p.set_defaults(func=cmd_train)
     return parser

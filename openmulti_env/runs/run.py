@@ -27,7 +27,7 @@ from mapping.team import AgentSnapshot, RoundPlan
 from mapping.team.global_map import global_rays_for, published_mapping, scene_frame
 from openmulti_env.environment.actions import actions_to_plan
 from openmulti_env.environment.observation import slot_instances
-from openmulti_env.environment.observation import TeamObserver
+from openmulti_env.environment.observation import TeamObserver, team_observer
 from openmulti_env.experiment import (Experiment, checkpoint_identity, experiment, read_checkpoint_identity,
                                       resolved_team, tree_record, write_config)
 from openmulti_env.runs.sim_source import SimulatedSource
@@ -85,10 +85,8 @@ def _run_scene(tree: Experiment) -> dict:
     try:
         observer, slots = None, 0
         if begun.policy.reads_observations:
-            slots = tree.env.instance_slots if policy_form(begun.policy) == "instances" else 0
-            capacity = None if tree.channel.link_mb_per_round is None else tree.channel.link_mb_per_round * 1e6
-            observer = TeamObserver((0.0, 0.0, 0.0), world.scene.size_m, tree.env.map_size, tree.channel.budget_bytes,
-                                    capacity, slots)
+            observer = team_observer(tree, world.scene.size_m, policy_form(begun.policy))
+            slots = observer.instance_slots
         return run_team(source, record, run_config(tree, team, begun.workers, world.scene.name),
                         PolicySchedule(begun.policy, observer, slots), start=begun.start).as_json()
     finally:
@@ -125,12 +123,8 @@ def run_config(tree: Experiment, team, workers: int, name: str) -> RunConfig:
     as ``OUT/config.yaml`` first (a run that fails midway still says what it was)."""
     out = Path(tree.run.out)
     write_config(tree, out)
-    job = tree.run
-    return RunConfig(out, team, tree.channel, seed=tree.seed, device=job.device, workers=workers, threads=job.threads,
-                     checkpoint_every=job.checkpoint_every, max_rounds=job.max_rounds, three_cullings=job.three_cullings,
-                     culling_viewpoint_stride=job.culling_viewpoint_stride,
-                     plots=job.plots, progress=job.progress, processes=job.processes, learner=job.learner,
-                     evaluate=job.evaluate, title=f"{name}: policy {job.policy}")
+    return RunConfig(replace(tree.run, workers=workers), team, tree.channel, seed=tree.seed,
+                     title=f"{name}: policy {tree.run.policy}")
 
 
 @dataclass

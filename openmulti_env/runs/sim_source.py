@@ -7,10 +7,9 @@ from __future__ import annotations
 import numpy as np
 
 from mapping.data import Frame
-from mapping.perception import TextEncoder
+from mapping.perception import TextEncoder, Vocabulary
 from mapping.perception.image_encoder import ImageTextEncoder
 from mapping.pipeline.source import CameraViews, GroundTruth
-from mapping.team import Vocabulary
 from openmulti_env.world.semantics import category_vocabulary, semantic_ground_truth
 from openmulti_env.world.stream import WorldStream, world_streams, world_vocabulary
 from openmulti_env.world.world import World

@@ -16,6 +16,7 @@ import numpy as np
 from pettingzoo import ParallelEnv
 
 from openmulti_env.environment.parallel_env import OpenMultiParallelEnv
+from openmulti_env.experiment.tree import DEFAULT_PRESETS
 from mapping.runtime import cores_each
 
 REPORTED_SCENES = ("room0", "office0", "room2")
@@ -128,7 +129,7 @@ def check_training_scenes(scenes: tuple[str, ...]) -> None:
                          f"{REPORTED_SCENES}; train on others (random:SEED rooms by default)")
 
 
-TRAIN_PRESET = "rl_small"
+TRAIN_PRESET = DEFAULT_PRESETS["train"]
 
 
 def train_config(args) -> "TrainConfig":

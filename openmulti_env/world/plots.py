@@ -12,7 +12,7 @@ import numpy as np  # noqa: E402
 from matplotlib.collections import PolyCollection  # noqa: E402
 
 from mapping.data import Frame  # noqa: E402
-from mapping.pipeline.plots import save_figure  # noqa: E402
+from mapping.figures import save_figure  # noqa: E402
 from openmulti_env.world.coverage import covered_mask, observed_points  # noqa: E402
 from openmulti_env.world.scene import Scene  # noqa: E402
 

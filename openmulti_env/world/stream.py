@@ -8,12 +8,11 @@ from collections import OrderedDict
 from typing import Callable
 
 from mapping.data import Frame
-from mapping.perception import FrameSegmentation, TextEncoder, shared_text_encoder
+from mapping.perception import FrameSegmentation, TextEncoder, Vocabulary, shared_text_encoder
 from mapping.perception.errors import SegmentationErrorConfig
 from mapping.perception.front_end import encode_segments
 from mapping.perception.image_encoder import ImageTextEncoder
 from mapping.perception.segmenter import OracleSegmenter
-from mapping.team import Vocabulary
 from openmulti_env.world.scene import STRUCTURE_CATEGORIES
 from openmulti_env.world.semantics import instance_anchor_points, instance_infos
 from openmulti_env.world.world import World

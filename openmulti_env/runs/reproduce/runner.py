@@ -91,7 +91,7 @@ def library_defaults(preset: str) -> dict:
     """The team settings a run takes from the library (JSON-plain), beside its method's options."""
     from mapping.team import ConsistencyConfig, ExchangeConfig  # noqa: PLC0415
     from mapping.pipeline.records import settings_record  # noqa: PLC0415
-    from openmulti_env.presets import mapping_config  # noqa: PLC0415
+    from openmulti_env.experiment.presets import mapping_config  # noqa: PLC0415
 
     consistency = settings_record(ConsistencyConfig())
     consistency.pop("missing_edges")  # a method's option (``Method.run_options``), set by DiNNO's and DSGD's only

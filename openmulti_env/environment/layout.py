@@ -1,7 +1,10 @@
-"""The observation a communication policy reads: names and positions of its parts.
+"""The env's observation contract: names and positions of an observation's parts, and helpers that read
+them by name.
 
-The env (``openmulti_env``) writes observations in this layout and policies read them by these names, so
-neither package imports the other. An observation is a ``Dict`` of two entries:
+The env (``observation.py``, ``parallel_env.py``) writes observations in this layout; policies read them by
+these names, importing this module and nothing else of ``openmulti_env``. It imports only numpy and the
+standard library, so a policy that reads observations does not load the simulator. An observation is a
+``Dict`` of these entries:
 
 ``map``: (S, S, C) uint8 in [0, 255], channels last, rows along +y of the room and columns along +x (the
 room's floor box fills the square with a margin). Channels ``MAP_CHANNELS``:
