@@ -8,6 +8,8 @@ culling's seconds, the share of faces whose verdict differs from the default's, 
 accuracy of the culled map against the observable ground truth (the same sampled reference as a run).
 
     .venv/bin/python benchmarks/bench_culling.py runs/demo runs/headroom_fast/room1-s3/unlimited/always
+
+Figures: docs/profile.md#a-cheaper-culling-measured-benchmarksbench_cullingpy
 """
 
 from __future__ import annotations

@@ -5,6 +5,8 @@ the mesh-based metric over whole episodes.
 Run: `.venv/bin/python benchmarks/bench_env.py [--presets rl_tiny rl] [--episodes 3] [--memory-episodes 20]
 [--correlation-every 2]`. Random actions (each entry 1 with probability 1/2). Prints Markdown tables and
 writes `--out/bench_env.json`, `--out/estimate_vs_mesh.png` and `--out/render_<preset>.png`.
+
+Figures: docs/env.md#speed, docs/env.md#how-well-the-estimate-tracks-the-meshes
 """
 
 from __future__ import annotations

@@ -12,6 +12,8 @@ round, median over rounds), so a process that competes for the cores slows them 
 figures are still only meaningful on an otherwise idle machine (the load is printed).
 
 Run: `.venv/bin/python benchmarks/bench_field.py [--threads 2] [--repeats 30] [--json runs/bench_field.json]`.
+
+Figures: docs/world.md#the-mapper-mapping, docs/profile.md#the-learners-arithmetic
 """
 
 from __future__ import annotations
@@ -21,7 +23,6 @@ import json
 import os
 import platform
 import statistics
-import sys
 import time
 from pathlib import Path
 from typing import Callable
@@ -29,12 +30,11 @@ from typing import Callable
 import torch
 from torch import nn
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from mapping.model.encoding import COLOUR_INPUT_DIM, GEOMETRY_INPUT_DIM, encode_positions  # noqa: E402
-from mapping.model.field import FieldConfig, InstanceFieldBank  # noqa: E402
-from mapping.model.field_reference import looped_forward  # noqa: E402
-from mapping.model.instance_params import mlp_flops_per_point  # noqa: E402
-from mapping.model.optim import AdamConfig, StackedAdam  # noqa: E402
+from mapping.model.encoding import COLOUR_INPUT_DIM, GEOMETRY_INPUT_DIM, encode_positions
+from mapping.model.field import FieldConfig, InstanceFieldBank
+from mapping.model.field_reference import looped_forward
+from mapping.model.instance_params import mlp_flops_per_point
+from mapping.model.optim import AdamConfig, StackedAdam
 
 SETTINGS = [(32, 20, 1200), (32, 100, 120), (32, 20, 240), (128, 4, 1200)]  # (width, instances, points)
 """vMAP: 120 rays x 10 samples per object per step (1200 points), 1200 rays for the background (W=128)."""

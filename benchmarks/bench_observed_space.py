@@ -6,6 +6,8 @@ from its mask's points, free rays from every ``--stride``-th valid pixel and a q
 pixels. Target: a grid at most 5 % of the parameter bytes.
 
     .venv/bin/python benchmarks/bench_observed_space.py --scene room0 --preset demo
+
+Figures: docs/observed_space.md#measured
 """
 
 from __future__ import annotations
@@ -19,7 +21,7 @@ from mapping.model.agent_config import MappingConfig
 from mapping.model.banks import param_counts
 from mapping.model.bounds import InstanceBound
 from mapping.model.observed import ObservedSpace, observe_frame
-from openmulti_env.presets import get_preset, world_config
+from openmulti_env.experiment.presets import get_preset, world_config
 from openmulti_env.world import World
 
 

@@ -1,5 +1,6 @@
-"""The reproduction grid on Ray against the sequential runner, side by side in one process: the same
-grid (by default Table V's four `openmulti` runs on the `tiny` scene at preset `tiny`), first one run
+"""The reproduction grid on Ray against the sequential runner, side by side in one process.
+
+The same grid (by default Table V's four `openmulti` runs on the `tiny` scene at preset `tiny`), first one run
 at a time, then as Ray tasks on a local Ray with ``--workers`` CPUs (one per run), each into a fresh
 folder. Prints wall times, the ratio, and whether both made the same rows: every metric but the
 times alike, and how many bytes apart (processes differ at float level here, which can change the
@@ -7,6 +8,8 @@ length of a number in a message header by a few bytes: the README's limits).
 
 Run: `.venv/bin/python benchmarks/bench_ray_grid.py [--workers 2] [--out runs/bench_ray_grid]`.
 Writes `OUT/bench_ray_grid.json`.
+
+Figures: docs/ray.md#measured-here, docs/benchmarks.md#the-grid-on-ray
 """
 
 from __future__ import annotations

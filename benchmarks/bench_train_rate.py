@@ -12,6 +12,8 @@ building what another run built.
         --run lite=.:rl_lite --env-steps 512 --repeats 1 --out runs/bench_train_rate
 
 Rows are appended to ``--out/rows.jsonl`` as each run ends (a rerun skips what is there).
+
+Figures: docs/profile.md#openmulti-trains-env-steps-per-hour-side-by-side-with-main-at-6892348-issue-47s-headline-target
 """
 
 from __future__ import annotations

@@ -7,6 +7,8 @@ RSS at the end. Per env is peak / K: what K worlds in one process cost each, aga
 one world each (K x the K=1 row).
 
     .venv/bin/python benchmarks/bench_vector_memory.py --preset rl_small --worlds 1 2 4
+
+Figures: docs/profile.md#the-training-episode-rl_small-where-a-step-goes-and-memory-per-env-issue-47-2026-12-06
 """
 
 from __future__ import annotations

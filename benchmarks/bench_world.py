@@ -2,6 +2,8 @@
 
 Run: `.venv/bin/python benchmarks/bench_world.py [--presets room0 office0 ...] [--out runs/bench_world.json]`.
 Prints tables; writes the figures as JSON (atomically) for the README.
+
+Figures: docs/world.md#measured
 """
 
 from __future__ import annotations

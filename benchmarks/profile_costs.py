@@ -11,6 +11,8 @@ Run:
 
 Prints the top functions by cumulative time and writes the raw profile to `--stats` (read it with
 `python -m pstats`).
+
+Figures: docs/profile.md
 """
 
 from __future__ import annotations

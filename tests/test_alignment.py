@@ -1,5 +1,5 @@
 """Cross-agent instance alignment (sec. III-C) on hand-made clouds, FusionResults and frames: the overlap
-and graph of ``mapping.alignment`` and the batch alignment of ``benchmarks.batch_alignment``."""
+and graph of ``mapping.alignment`` and the batch alignment of ``studies.batch_alignment``."""
 
 from __future__ import annotations
 
@@ -9,13 +9,13 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from benchmarks.batch_alignment import align_agents, id_consistency, id_purity, no_alignment, oracle_alignment
-from benchmarks.batch_alignment.messages import instance_message_bytes
 from mapping.alignment import AlignmentConfig, InstanceCollaborativeGraph, iob, iou
 from mapping.alignment.overlap import directed_overlap_count, pairwise_overlap_counts
 from mapping.data.frame import Frame, Intrinsics
 from mapping.perception.types import AgentInstance, FrameSegmentation, FusionResult, Segment
 from mapping.pointcloud import voxel_downsample
+from studies.batch_alignment import align_agents, id_consistency, id_purity, no_alignment, oracle_alignment
+from studies.batch_alignment.messages import instance_message_bytes
 
 
 @pytest.fixture(scope="session")

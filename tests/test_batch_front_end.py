@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from benchmarks.batch_alignment import align_team, labelled_points
-from benchmarks.batch_alignment.front_end import FrontEndConfig, perceive_team
 from mapping.evaluate.semantic import score_semantics
 from mapping.perception.errors import SegmentationErrorConfig
 from openmulti_env.world.semantics import category_vocabulary, semantic_ground_truth
+from studies.batch_alignment import align_team, labelled_points
+from studies.batch_alignment.front_end import FrontEndConfig, perceive_team
 
 
 @pytest.fixture(scope="module")

@@ -14,10 +14,10 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("mapping", "openmulti_env", "policies")
 FORBIDDEN = {
-    "mapping": ("openmulti_env", "policies", "benchmarks", "pettingzoo", "gymnasium", "pyrender", "supersuit",
-                "stable_baselines3", "torchrl"),
-    "openmulti_env": ("benchmarks",),
-    "policies": ("mapping", "benchmarks"),
+    "mapping": ("openmulti_env", "policies", "studies", "benchmarks", "pettingzoo", "gymnasium", "pyrender",
+                "supersuit", "stable_baselines3", "torchrl"),
+    "openmulti_env": ("studies", "benchmarks"),
+    "policies": ("mapping", "studies", "benchmarks"),
 }
 LAYOUT = "openmulti_env.environment.layout"
 """The env's observation contract: the one module of ``openmulti_env`` policies import."""

@@ -1,15 +1,16 @@
-"""The benchmark's paired comparison: each policy against the fixed-rate front at its own bytes, then the difference."""
+"""The study's paired comparison: each policy against the fixed-rate front at its own bytes, then the difference."""
 
 import numpy as np
 import pytest
 
-from benchmarks.learned_vs_fixed import FIXED, pairs_table, paired
+from studies.fronts import FIXED_RATE, paired
+from studies.learned_vs_fixed import pairs_table
 
 
 def cell_rows(cell: str, a: tuple[float, float], b: tuple[float, float]) -> list[dict]:
     """A cell whose fixed-rate front is the straight line completion = 50 + MB (never at 0 MB, always at 40)."""
     rows = [{"cell": cell, "policy": name, "mb": mb, "completion": 50.0 + mb}
-            for name, mb in zip(FIXED, np.linspace(0.0, 40.0, len(FIXED)))]
+            for name, mb in zip(FIXED_RATE, np.linspace(0.0, 40.0, len(FIXED_RATE)))]
     rows.append({"cell": cell, "policy": "A", "mb": a[0], "completion": a[1]})
     rows.append({"cell": cell, "policy": "B", "mb": b[0], "completion": b[1]})
     return rows

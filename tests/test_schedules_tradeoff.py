@@ -6,15 +6,7 @@ import json
 
 import pytest
 
-from benchmarks.schedules_tradeoff import front_at, load_rows, short, summary
-
-
-def test_front_is_the_upper_envelope_read_at_equal_bytes():
-    points = [(0.0, 10.0), (40.0, 50.0), (60.0, 40.0), (100.0, 60.0), (50.0, 52.0)]
-    assert front_at(points, 0.0) == pytest.approx(10.0)
-    assert front_at(points, 20.0) == pytest.approx(30.0)  # between never and every:3-like
-    assert front_at(points, 60.0) > 52.0  # the dominated (60, 40) is not on the front
-    assert front_at(points, 100.0) == pytest.approx(60.0) and front_at(points, 500.0) == pytest.approx(60.0)
+from studies.schedules_tradeoff import load_rows, short, summary
 
 
 def test_summary_pairs_each_policy_with_always_and_the_front(tmp_path):

@@ -4,8 +4,8 @@
 The options (``config``), the overlap of two instance clouds, IoU / IoB of eq. 3-4 (``overlap``), the
 Instance Collaborative Graph (``graph``), and the instance confidence of eq. 1-2 (``confidence``).
 The batch alignment of a whole team's fused instances (split / merge corrections, corrected masks, the
-ground-truth oracle) is reached only from ``benchmarks/bench_alignment.py`` and lives beside it, in
-``benchmarks.batch_alignment``.
+ground-truth oracle) is reached only from ``python -m studies.alignment`` and lives beside it, in
+``studies.batch_alignment``.
 """
 
 from mapping.alignment.config import AlignmentConfig

@@ -2,7 +2,7 @@
 
 Shared by the online alignment on arrival (``mapping.team.arrival``), which applies the Instance
 Collaborative Graph's edge rules, and by the batch alignment beside its benchmark
-(``benchmarks.batch_alignment``), which also splits under-segmented instances.
+(``studies.batch_alignment``), which also splits under-segmented instances.
 """
 
 from __future__ import annotations

@@ -16,7 +16,7 @@ of one kind rarely share a strip; a semantic error blocks only this weaker edge,
 
 A vertex is a ``Node`` = (agent, local_id, part): part 0 is a whole local instance; parts 1, 2, ...
 are the pieces an under-segmented instance was split into (by the batch alignment,
-``benchmarks.batch_alignment.corrections``), so the graph can replace a vertex by its pieces and
+``studies.batch_alignment.corrections``), so the graph can replace a vertex by its pieces and
 cluster again.
 """
 

@@ -106,7 +106,7 @@ def for_recordings(config: MappingConfig) -> MappingConfig:
     each instance's rays free-space ones taken from every keyframe ray that crosses its box. A setting
     ``config`` already moved from ``MappingConfig``'s default is kept.
 
-    Why (``benchmarks/study_real_causes.py``, 7-Scenes and TUM, 2 agents, ``fast``, seeds 0 and 1): carving
+    Why (``python -m studies.real_causes``, 7-Scenes and TUM, 2 agents, ``fast``, seeds 0 and 1): carving
     took the share of depth pixels off by > 5 cm from 30-56 % to 20-28 % and no seed collapsed into a
     box-filling blob; what stayed off was mostly surface an instance invented inside its box in front of
     another instance's surface, which only that other instance's rays saw. Free-space rays from every ray

@@ -11,7 +11,7 @@ import numpy as np
 
 CATEGORY_PROMPT = "a {} in a room"
 """How a category name becomes text before SBERT encodes it. Measured on the 214 metadata captions of
-the eight scene presets against the 34 simulator categories (benchmarks/bench_retrieval.py): bare name
+the eight scene presets against the 34 simulator categories (python -m studies.retrieval): bare name
 79.0 % correct, "a {}" 82.2 %, "a photo of a {}" 88.3 %, "a {} in a room" 89.7 %. The rest are
 near-synonym classes (plant / potted_plant, picture / window_frame, pillow / sofa)."""
 

@@ -17,7 +17,7 @@ The reference of eq. 1-2 (the more confident side) decides the meaning: a matche
 is more confident takes the peer's caption and feature (``take_meaning``). Under-segmentation on my
 side is left to the peer: when it receives my two pieces it matches both to its coarse instance; the
 online path does not split masks (the batch ``align_agents`` beside the alignment benchmark,
-``benchmarks.batch_alignment``, does).
+``studies.batch_alignment``, does).
 """
 
 from __future__ import annotations

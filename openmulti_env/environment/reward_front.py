@@ -2,7 +2,7 @@
 
 The schedules of the front (``never``, ``every:K``, ``rate:Q``, ``always``) are played once on the same episode
 (world and episode seed) and cached; their (team MB, team completion) points make a front F: the upper
-envelope, straight lines between kept points, flat past the last (``front``; ``benchmarks/learned_vs_fixed.py``
+envelope, straight lines between kept points, flat past the last (``front``; ``studies.learned_vs_fixed``
 judges policies on the same function). A step pays
 
     (gain - never's gain at that step - (F(MB sent so far) - F(MB sent before this step))) / (always's final - never's final)

@@ -125,7 +125,7 @@ def apply_overrides(tree, overrides: Mapping[str, Any]):
         if path == "team.alignment" and isinstance(value, str):
             if value not in ALIGNMENT_WORDS:
                 raise ConfigError(f"unknown alignment {value!r}; choose one of {tuple(ALIGNMENT_WORDS)} (the team has "
-                                  "no ground-truth 'oracle' alignment; it is in benchmarks/bench_alignment.py)")
+                                  "no ground-truth 'oracle' alignment; it is in python -m studies.alignment)")
             value = ALIGNMENT_WORDS[value]
         tree = _set(tree, path.split("."), value, path)
     return tree

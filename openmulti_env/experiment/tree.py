@@ -29,10 +29,10 @@ from mapping.team import ChannelConfig, TeamConfig
 from mapping.team.global_map import GLOBAL_ENCODING_SCALE, GLOBAL_FORMS, GLOBAL_WIDTH
 from openmulti_env.world.world import WorldConfig
 
-DEFAULT_PRESETS = {"run": "fast", "reproduce": "fast", "env": "rl", "train": "rl_small", "study": "fast"}
+DEFAULT_PRESETS = {"run": "fast", "reproduce": "fast", "env": "rl", "train": "rl_small"}
 """The preset each entry point starts from when none is given: ``openmulti run`` and ``reproduce`` the measured
-setting, ``parallel_env`` the RL-sized one, ``openmulti train`` the one it learns at, the studies the measured one.
-``Experiment()`` itself is ``fast`` (``openmulti_env.experiment.presets``)."""
+setting, ``parallel_env`` the RL-sized one, ``openmulti train`` the one it learns at. ``Experiment()`` itself is
+``fast`` (``openmulti_env.experiment.presets``). A study names its own (the setting its rows were measured at)."""
 TEXT_ENCODERS = ("mpnet", "minilm")
 REWARD_MODES = ("team", "individual")
 REWARD_BASELINES = ("none", "never_always", "front")
