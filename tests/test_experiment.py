@@ -144,3 +144,17 @@ def test_a_record_with_keys_of_its_own_is_not_trusted():
     now = {**checkpoint_identity(tree, {}), "team": team}
     assert read_checkpoint_identity({**json.loads(json.dumps(now)), "extra": 1}) is None
     assert read_checkpoint_identity({k: v for k, v in now.items() if k != "source"}) is None
+
+
+def test_a_config_file_that_leaves_settings_out_takes_its_presets(tmp_path):
+    """A hand-written file names its preset and a few settings: the rest are the preset's, not ``fast``'s."""
+    path = tmp_path / "config.yaml"
+    path.write_text("format: openmulti.experiment\nversion: 1\npreset: tiny\nseed: 3\n"
+                    "team:\n  exchange:\n    float16: true\n")
+    tree = read_config(path)
+    tiny = get_preset("tiny")
+    assert tree.seed == 3 and tree.team.exchange.float16
+    assert tree.world == tiny.world and tree.team.mapping == tiny.team.mapping  # tiny's 24 frames at 160x120
+    assert read_config(path).world.path.frames_per_agent == 24 != get_preset("fast").world.path.frames_per_agent
+    write_config(tiny, tmp_path)
+    assert read_config(tmp_path / "config.yaml") == tiny  # a whole file reads back as written

@@ -4,6 +4,7 @@ dicts in ``checkpoints/run_settings.json`` and ``metrics.json``'s ``config``).""
 
 from __future__ import annotations
 
+import difflib
 import os
 from dataclasses import asdict, replace
 from pathlib import Path
@@ -14,7 +15,7 @@ import yaml
 from mapping.config_fields import range_problem
 from mapping.pipeline.records import as_record, missing_paths, neutral_default_paths
 from mapping.safe_parse import ParseError, load_data
-from openmulti_env.experiment.overrides import ConfigError, from_mapping
+from openmulti_env.experiment.overrides import ConfigError, apply_overrides, from_mapping, leaf_paths, node_paths
 from openmulti_env.experiment.tree import Experiment
 
 FORMAT = "openmulti.experiment"
@@ -96,11 +97,32 @@ def _from_version1(record: dict) -> Experiment:
     if settings.get("preset") not in PRESET_NAMES:
         raise ConfigError(f"preset must be one of {PRESET_NAMES}, got {settings.get('preset')!r} (a record names the "
                           "preset its tree started from)")
-    tree = from_mapping(Experiment, settings)
+    from openmulti_env.experiment.presets import get_preset  # noqa: PLC0415
+
+    # on the named preset, so a hand-written file that leaves settings out gets its preset's, not Experiment()'s
+    tree = apply_overrides(get_preset(settings["preset"]), record_leaves(settings))
     problem = range_problem(tree)
     if problem:
         raise ConfigError(problem)
     return tree
+
+
+def record_leaves(settings: dict, prefix: str = "") -> dict[str, Any]:
+    """A written tree's nested mappings as ``dotted.path: value`` of its leaves (``overrides.leaf_paths``; a node
+    that may be None, such as ``team.mapping.structure_sdf``, is one leaf); ConfigError naming a key that names
+    no field, and the nearest ones (a file spells every field by its path; no short spellings)."""
+    leaves, nodes = leaf_paths(Experiment), node_paths(Experiment)
+    out: dict[str, Any] = {}
+    for key, value in settings.items():
+        path = prefix + str(key)
+        if path in leaves:
+            out[path] = value
+        elif path in nodes and isinstance(value, dict):
+            out.update(record_leaves(value, path + "."))
+        else:
+            near = difflib.get_close_matches(path, sorted(set(leaves) | nodes), n=3, cutoff=0.6)
+            raise ConfigError(f"unknown field {path!r}" + (f"; did you mean {', '.join(near)}?" if near else ""))
+    return out
 
 
 def _from_version0(record: dict) -> Experiment:
