@@ -29,7 +29,7 @@ import numpy as np
 def profile_env(preset: str, episodes: int, cache_dir: str | None) -> cProfile.Profile:
     from openmulti_env import parallel_env  # noqa: PLC0415
 
-    env = parallel_env(preset=preset, cache_dir=cache_dir, threads=1, agent_workers=1)
+    env = parallel_env(preset=preset, cache_dir=cache_dir, threads=1, workers=1)
     rng = np.random.default_rng(0)
 
     def actions() -> dict:

@@ -145,7 +145,8 @@ def test_bad_policies_and_options_are_refused_naming_the_problem(tmp_path, capsy
                            (["--policy", "bernoulli:1.5"], "[0, 1]"),
                            (["--policy", "budget"], "policy 'budget' needs a budget: --comm-budget-mb MB"),
                            (["--policy", "budget", "--comm-budget-mb", "-1"], "--comm-budget-mb (channel.budget_mb) must be >= 0"),
-                           (["--perfect-masks"], "--perfect-masks is for --scene")):
+                           (["--perception.segmentation-errors", "false"],
+                            "--perception.segmentation-errors false is for --scene")):
         assert main(base + extra) == 2, extra
         assert message in capsys.readouterr().err, extra
     with pytest.raises(ValueError, match="no ground-truth 'oracle' alignment"):

@@ -30,9 +30,8 @@ IDS = ["rl_tiny-2", "rl_tiny-3-individual", "rl_tiny-4-budget", "rl_tiny-6-indiv
 
 
 @pytest.fixture(params=CONFIGS, ids=IDS)
-def config(request, tmp_path_factory):
-    cache = tmp_path_factory.getbasetemp() / "world-cache"  # one cache for the session: later builds hit
-    return {**request.param, "cache_dir": str(cache)}
+def config(request, warm_env_kwargs):
+    return warm_env_kwargs(**request.param)  # one world cache for the run, the world in it: every env hits
 
 
 def test_parallel_api(config):
@@ -65,11 +64,11 @@ def test_max_cycles(config):
     max_cycles_test(module)
 
 
-def test_max_cycles_on_the_module_itself(tmp_path_factory):
+def test_max_cycles_on_the_module_itself(warm_env_kwargs):
     """PettingZoo calls ``parallel_env(max_cycles=4)`` with the module's defaults (preset rl)."""
     from openmulti_env import openmulti_v0
 
-    cache = str(tmp_path_factory.getbasetemp() / "world-cache")
+    cache = warm_env_kwargs()["cache_dir"]
     module = types.SimpleNamespace(parallel_env=functools.partial(openmulti_v0.parallel_env, cache_dir=cache),
                                    env=functools.partial(openmulti_v0.env, cache_dir=cache))
     max_cycles_test(module)

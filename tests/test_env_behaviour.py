@@ -15,8 +15,8 @@ from openmulti_env.world.cache import WorldCacheWarning, clear_world_cache, worl
 
 
 @pytest.fixture(scope="module")
-def cache(tmp_path_factory):
-    return str(tmp_path_factory.mktemp("worlds"))
+def cache(shared_world_cache):
+    return str(shared_world_cache)  # the run's one world cache: worlds other modules built are read, not built
 
 
 def _episode(e, seed: int, action_seed: int):
@@ -116,7 +116,7 @@ def test_bad_construction_is_refused_clearly(cache):
     with pytest.raises(ValueError, match="learner must be one of"):
         parallel_env(preset="rl_tiny", learner="batched")
     with pytest.raises(ValueError, match="not with run.processes"):
-        parallel_env(preset="rl_tiny", learner="fleet", agent_processes="ray")
+        parallel_env(preset="rl_tiny", learner="fleet", processes="ray")
     with pytest.raises(ValueError, match="render_mode"):
         parallel_env(preset="rl_tiny", render_mode="ascii")
     with pytest.raises(ValueError, match="unknown scene"):
@@ -260,8 +260,8 @@ def test_world_cache_is_trimmed_to_its_cap(tmp_path):
 
 
 def test_agent_worker_threads_do_not_change_the_episode(cache):
-    one = _episode(parallel_env(preset="rl_tiny", num_agents=3, cache_dir=cache, agent_workers=1), seed=8, action_seed=3)
-    two = _episode(parallel_env(preset="rl_tiny", num_agents=3, cache_dir=cache, agent_workers=2), seed=8, action_seed=3)
+    one = _episode(parallel_env(preset="rl_tiny", num_agents=3, cache_dir=cache, workers=1), seed=8, action_seed=3)
+    two = _episode(parallel_env(preset="rl_tiny", num_agents=3, cache_dir=cache, workers=2), seed=8, action_seed=3)
     _assert_same_episode(one, two)
 
 
@@ -307,7 +307,7 @@ def test_a_reset_frees_the_old_team_without_a_garbage_collection(cache, workers)
     import gc
     import weakref
 
-    e = parallel_env(preset="rl_tiny", cache_dir=cache, threads=1, agent_workers=workers)
+    e = parallel_env(preset="rl_tiny", cache_dir=cache, threads=1, workers=workers)
     _episode(e, seed=2, action_seed=1)
     gone = [weakref.ref(x) for x in (e.team, *e.team.members, *(m.mapper for m in e.team.members))]
     gc.collect()

@@ -10,8 +10,8 @@ from openmulti_env import parallel_env
 
 
 @pytest.fixture(scope="module")
-def cache(tmp_path_factory):
-    return str(tmp_path_factory.mktemp("client-worlds"))
+def cache(shared_world_cache):
+    return str(shared_world_cache)  # the run's one world cache: worlds other modules built are read, not built
 
 
 def test_supersuit_and_stable_baselines3_ppo_train_on_tiny(cache):

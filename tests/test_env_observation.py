@@ -17,8 +17,8 @@ from openmulti_env.environment.layout import LINK_FEATURES, MAP_CHANNELS, agent_
 
 
 @pytest.fixture(scope="module")
-def cache(tmp_path_factory):
-    return str(tmp_path_factory.mktemp("worlds"))
+def cache(shared_world_cache):
+    return str(shared_world_cache)  # the run's one world cache: worlds other modules built are read, not built
 
 
 def _with_hidden_box(world, centre):

@@ -17,8 +17,8 @@ from openmulti_env.environment.layout import AGENT_FEATURES, INSTANCE_FEATURES, 
 
 
 @pytest.fixture(scope="module")
-def cache(tmp_path_factory):
-    return str(tmp_path_factory.mktemp("worlds"))
+def cache(shared_world_cache):
+    return str(shared_world_cache)  # the run's one world cache: worlds other modules built are read, not built
 
 
 def test_range_and_capacity_make_the_round_links():

@@ -96,7 +96,7 @@ def test_the_env_with_agents_in_processes_steps_as_in_one(local_ray, tmp_path):
     from openmulti_env import parallel_env
 
     def episode(processes):
-        env = parallel_env(preset="rl_tiny", agent_processes=processes, cache_dir=str(tmp_path / "worlds"))
+        env = parallel_env(preset="rl_tiny", processes=processes, cache_dir=str(tmp_path / "worlds"))
         observations, _ = env.reset(seed=3)
         seen = [observations]
         rewards = []
@@ -119,4 +119,4 @@ def test_the_env_with_agents_in_processes_steps_as_in_one(local_ray, tmp_path):
             assert np.array_equal(a[agent]["map"], b[agent]["map"])
             np.testing.assert_allclose(a[agent]["comm"], b[agent]["comm"], rtol=0, atol=1e-6)
     with pytest.raises(ValueError, match="run.processes must be None or 'ray', got 'mpi'"):
-        parallel_env(preset="rl_tiny", agent_processes="mpi")
+        parallel_env(preset="rl_tiny", processes="mpi")

@@ -94,7 +94,7 @@ the small `tiny` room). `num_agents`: 2-8 (default: the preset's). `preset`: one
 steps of about a second), `rl_tiny` (8 steps, for tests), `tiny`, `demo`, `fast`, `full` (the paper's).
 `seed`: the world's seed. `render_mode`: None or `rgb_array` (`human` is accepted and draws nothing:
 the env is headless). `comm_budget_mb`: megabytes each agent may send per episode. `reward`: `team` or
-`individual`. `max_cycles`: the horizon (alias of `horizon`). `overrides`: any field of the configuration
+`individual`. `max_cycles`: the horizon (PettingZoo's name for `horizon`). `overrides`: any field of the configuration
 tree (`openmulti_env.experiment.Experiment`, the one `openmulti run` writes as `config.yaml`), by its short
 spelling (e.g. `success_probability=0.5`, `comm_cost_per_mb=0`, `action_form="instances"`, `instance_slots=16`,
 `link_range_m=2.0`, `link_mb_per_round=0.25`, `consistency="dinno"`, `map_size=96`,
@@ -155,7 +155,11 @@ class OpenMultiParallelEnv(ParallelEnv, EzPickle):
             raise ValueError(f"max_cycles={max_cycles} and horizon={overrides['horizon']} disagree; give one")
         if max_cycles is not None:
             overrides["horizon"] = max_cycles
-        self.config: Experiment = env_config(preset, scene=scene, num_agents=num_agents, comm_budget_mb=comm_budget_mb,
+        if "agents" in overrides:  # the short spelling of world.num_agents, PettingZoo's num_agents here
+            if num_agents is not None and overrides["agents"] != num_agents:
+                raise ValueError(f"num_agents={num_agents} and agents={overrides['agents']} disagree; give one")
+            num_agents = overrides.pop("agents")
+        self.config: Experiment = env_config(preset, scene=scene, agents=num_agents, comm_budget_mb=comm_budget_mb,
                                             reward=reward, **overrides)
         if render_mode is not None and render_mode not in RENDER_MODES + ("human",):
             raise ValueError(f"unknown render_mode {render_mode!r}; choose None or one of {list(RENDER_MODES)}")

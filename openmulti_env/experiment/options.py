@@ -1,6 +1,6 @@
 """The command line generated from a dataclass tree: one ``--node.field`` option per field (help from the
 field's docstring, the value a preset gives beside it), grouped by node, plus the short spellings
-(``--scene``, ``--float16``, ...) that name a field of the tree.
+(``--scene``, ``--no-cross-rendering``, ...) that name a field of the tree.
 
 Why argparse built from the fields rather than tyro or jsonargparse: the ``openmulti`` command has six
 subcommands whose other options (``query``, ``reproduce``, ``scenes``) are no tree, its presets choose the
@@ -28,14 +28,12 @@ TREE_DEST = "tree:"
 """Prefix of the namespace attributes that hold tree overrides (``tree:team.exchange.float16``)."""
 
 FLAGS: dict[str, tuple[str, Any]] = {
-    "float16": ("team.exchange.float16", True),
     "no_cross_rendering": ("team.consistency.cross_rendering", False),
-    "perfect_masks": ("perception.segmentation_errors", False),
     "no_evaluation": ("run.evaluate", False),
 }
 """Short flags of the older command line: the field each one sets and the value it sets it to."""
 SHORT_METAVARS = {"alignment": "{paper,none}", "out": "DIR", "data": "DIR", "gt_mesh": "PLY", "frames": "A:B:S",
-                  "intrinsics": "FX,FY,CX,CY", "comm_budget_mb": "MB", "changed_only": "REL", "holdout_every": "K",
+                  "intrinsics": "FX,FY,CX,CY", "comm_budget_mb": "MB", "holdout_every": "K",
                   "link_range_m": "M", "link_mb_per_round": "MB"}
 
 

@@ -13,7 +13,7 @@ from typing import Any, Mapping
 
 ALIASES: dict[str, str] = {
     # the world
-    "agents": "world.num_agents", "num_agents": "world.num_agents",
+    "agents": "world.num_agents",
     "frames_per_agent": "world.path.frames_per_agent", "planning_points": "world.path.planning_points",
     "image_width": "world.sensor.width", "image_height": "world.sensor.height",
     "culling_edge_m": "world.culling_edge_m",
@@ -42,19 +42,25 @@ ALIASES: dict[str, str] = {
     "comm_cost_of_always": "env.comm_cost_of_always", "action_form": "env.action_form",
     "instance_slots": "env.instance_slots", "budget_penalty": "env.budget_penalty",
     "probe_points": "env.probe_points", "map_size": "env.map_size", "horizon": "env.horizon",
-    "max_cycles": "env.horizon", "frame_cache_mb": "env.frame_cache_mb", "cache_dir": "env.cache_dir",
+    "frame_cache_mb": "env.frame_cache_mb", "cache_dir": "env.cache_dir",
     "cache_max_mb": "env.cache_max_mb",
     # the job
     "policy": "run.policy", "out": "run.out", "device": "run.device", "threads": "run.threads",
-    "workers": "run.workers", "agent_workers": "run.workers", "processes": "run.processes",
-    "agent_processes": "run.processes", "learner": "run.learner", "checkpoint_every": "run.checkpoint_every",
+    "workers": "run.workers", "processes": "run.processes", "learner": "run.learner", "checkpoint_every": "run.checkpoint_every",
     "max_rounds": "run.max_rounds", "three_cullings": "run.three_cullings", "culling_viewpoint_stride": "run.culling_viewpoint_stride", "plots": "run.plots",
     "evaluate": "run.evaluate", "progress": "run.progress",
     # a data set
     "data": "data.path", "kind": "data.kind", "gt_mesh": "data.gt_mesh", "frames": "data.frames",
     "intrinsics": "data.intrinsics", "depth_scale": "data.depth_scale", "recording_mapper": "data.recording_mapper",
 }
-"""Short spellings (the env's keywords, the older command line and records) and the field each one sets."""
+"""The one short spelling of a field that has one: the env's keyword (``parallel_env(rays_per_object=100)``) and,
+for those ``openmulti run`` lists (``runs.cli.RUN_SHORT``), its short option. Every field is also its dotted
+path (``--team.mapping.rays_per_object``, ``parallel_env(team__mapping__rays_per_object=100)``)."""
+
+OLD_SPELLINGS: dict[str, str] = {"num_agents": "world.num_agents", "max_cycles": "env.horizon",
+                                 "agent_workers": "run.workers", "agent_processes": "run.processes"}
+"""Second spellings older versions accepted and wrote in their flat records: read only by the reader of those
+records (``files.py``). ``parallel_env``'s own ``num_agents`` and ``max_cycles`` are PettingZoo's arguments."""
 
 ALIGNMENT_WORDS = {"paper": True, "none": False}
 """``alignment`` as the older records and command line spell it (``team.alignment`` is a bool)."""

@@ -26,7 +26,7 @@ from mapping.config_fields import NEUTRAL_DEFAULT, bounded
 from mapping.model.sdf_loss import SdfConfig
 from mapping.pipeline.settings import RunSettings
 from mapping.team import ChannelConfig, TeamConfig
-from mapping.team.global_map import GLOBAL_ENCODING_SCALE, GLOBAL_FORMS, GLOBAL_WIDTH
+from mapping.team.global_map import GLOBAL_ENCODING_SCALE, GLOBAL_WIDTH
 from openmulti_env.world.world import WorldConfig
 
 DEFAULT_PRESETS = {"run": "fast", "reproduce": "fast", "env": "rl", "train": "rl_small"}

@@ -25,10 +25,10 @@ from openmulti_env.experiment.tree import DEFAULT_PRESETS
 from openmulti_env.world.world import MAX_AGENTS
 from policies.train import TrainConfig
 
-RUN_SHORT = ("scene", "agents", "policy", "seed", "out", "device", "alignment", "consistency", "missing_edges",
-             "no_cross_rendering", "comm_budget_mb", "float16", "changed_only", "threads", "workers", "holdout_every",
-             "processes", "learner", "no_evaluation", "clip_checkpoint", "perfect_masks", "data", "kind", "gt_mesh",
-             "frames", "intrinsics", "depth_scale", "segmenter", "link_range_m", "link_mb_per_round")
+RUN_SHORT = ("scene", "agents", "policy", "seed", "out", "device", "threads", "workers", "processes", "alignment",
+             "consistency", "no_cross_rendering", "comm_budget_mb", "link_range_m", "link_mb_per_round",
+             "no_evaluation", "data", "kind", "gt_mesh", "frames", "intrinsics", "depth_scale", "segmenter",
+             "holdout_every")
 """The short spellings ``openmulti run`` offers besides every ``--node.field`` (the README's)."""
 TRAIN_SHORT = ("agents", "reward", "reward_baseline", "comm_cost_of_always", "comm_cost_per_mb", "comm_budget_mb", "horizon", "link_range_m", "link_mb_per_round")
 """The short spellings of the env's settings ``openmulti train`` offers."""

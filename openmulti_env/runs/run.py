@@ -30,6 +30,7 @@ from openmulti_env.environment.observation import slot_instances
 from openmulti_env.environment.observation import TeamObserver, team_observer
 from openmulti_env.experiment import (Experiment, checkpoint_identity, experiment, read_checkpoint_identity,
                                       resolved_team, tree_record, write_config)
+from openmulti_env.runs.made_at import made_at
 from openmulti_env.runs.sim_source import SimulatedSource
 from openmulti_env.world import World
 from policies import make_policy, parse_policy
@@ -69,7 +70,7 @@ def writable_folder(folder: Path, name: str) -> None:
 def _run_scene(tree: Experiment) -> dict:
     if tree.perception.segmenter != "fixed":
         raise ValueError("perception.segmenter (--segmenter) is for --data without instance images; the simulator's "
-                         "masks come from its own error model (--perfect-masks turns it off)")
+                         "masks come from its own error model (--perception.segmentation-errors false turns it off)")
     begun = begin_run(tree)
     world = World.build(tree.scene, seed=tree.seed, config=tree.world)
     print(f"[openmulti] world {world.scene.name}: {len(world.scene.instances)} instances, "
@@ -80,7 +81,7 @@ def _run_scene(tree: Experiment) -> dict:
     mapping, map_info = map_structure(world, tree)
     team = resolved_team(tree, mapping)
     errors = SegmentationErrorConfig() if segmentation_errors else SegmentationErrorConfig.none()
-    record = SourceRecord(tree_record(tree), {"map": map_info}, described={"error_rates": asdict(errors)},
+    record = SourceRecord(tree_record(tree), {"map": map_info, "made_at": made_at()}, described={"error_rates": asdict(errors)},
                           identity=checkpoint_identity(tree, {}), read_identity=read_checkpoint_identity)
     try:
         observer, slots = None, 0
@@ -95,7 +96,7 @@ def _run_scene(tree: Experiment) -> dict:
 
 def _run_data_set(tree: Experiment) -> dict:
     if not tree.perception.segmentation_errors:
-        raise ValueError("--perfect-masks is for --scene (the simulator's error model); with --data the masks are the "
+        raise ValueError("--perception.segmentation-errors false is for --scene (the simulator's error model); with --data the masks are the "
                          "data set's instance images or the geometric segmenter's")
     segmenter_config = segmenter_settings(tree.perception.segmenter)
     begun = begin_run(tree)
@@ -112,6 +113,7 @@ def _run_data_set(tree: Experiment) -> dict:
         print(f"[openmulti] note: {note}")
     source = DataSource(inputs, encoder, begun.image_encoder)
     record = source.record(tree_record(tree), checkpoint_identity(tree, source.facts()), read_checkpoint_identity)
+    record = replace(record, results={**record.results, "made_at": made_at()})  # the code the figures come from
     mapping = tree.team.mapping
     team = resolved_team(tree, for_recordings(mapping) if data.recording_mapper else mapping)
     return run_team(source, record, run_config(tree, team, begun.workers, inputs.name),

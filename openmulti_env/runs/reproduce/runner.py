@@ -4,7 +4,9 @@ Each run lives in ``OUT/runs/<key>/`` (``run`` checkpoints its team there every 
 from it) and, once finished, leaves its row in ``OUT/rows/<key>.json``, written atomically together
 with the settings that made it. Started again, ``reproduce`` skips every run whose row file holds the
 same settings, resumes a run that was interrupted (its checkpoint), and redoes one whose row file is
-unreadable or was made with other settings. A tqdm bar counts the runs.
+unreadable or was made with other settings. A tqdm bar counts the runs. Each row says when it was made
+(``made_at``: the commit of the code and the UTC date, ``openmulti_env.runs.made_at``); that is not a setting, so
+it decides nothing about reuse.
 
 Several processes can share one ``OUT`` (e.g. the same command started twice on one machine; across
 machines only on a file system whose ``flock`` works between them): each run is claimed with an
@@ -25,6 +27,7 @@ from tqdm import tqdm
 
 from mapping.pipeline.records import write_json_atomic
 from mapping.safe_parse import load_json
+from openmulti_env.runs.made_at import made_at
 from openmulti_env.runs.reproduce.methods import METHODS
 from openmulti_env.runs.reproduce.tables import RunSpec
 
@@ -163,7 +166,8 @@ def make_row(spec: RunSpec, job: GridJob) -> dict:
                      device=job.device, threads=job.threads, progress=False, max_rounds=job.max_rounds,
                      three_cullings=job.three_cullings, plots=False,
                      **{k: v for k, v in {**METHODS[spec.method].run_options(), **spec.options}.items() if k != "policy"})
-    row = {**row_from_metrics(spec, metrics), "run_s": time.perf_counter() - start, "preset": job.preset}
+    row = {**row_from_metrics(spec, metrics), "run_s": time.perf_counter() - start, "preset": job.preset,
+           "made_at": made_at()}
     if not job.keep_files:
         _drop_bulky_files(job.out / "runs" / key)
     return row

@@ -24,8 +24,8 @@ SCHEDULES = "schedules"
 ones (docs/schedules.md); made at ``rl_small`` (``--preset rl_small``) on scenes never used for a choice."""
 SCHEDULE_POLICIES = ("always", "never", "every:2", "every:4", "rate:0.25", "novelty", "instance_novelty",
                      "instance_novelty:change=0.1", "instance_novelty:change=1,after=999,final=0", "always+changed")
-"""``always+changed``: ``always`` with float16 vectors and changed-only sending at 1 % (``--float16 --changed-only
-0.01``); ``instance_novelty:change=1,after=999,final=0``: each network once, at its final state."""
+"""``always+changed``: ``always`` with float16 vectors and changed-only sending at 1 %
+(``--team.exchange.float16 --team.exchange.changed-only 0.01``); ``instance_novelty:change=1,after=999,final=0``: each network once, at its final state."""
 SCHEDULE_SCENARIOS = {"unlimited": (), "range": (("link_range_m", 2.0),), "bandwidth": (("link_mb_per_round", 0.25),)}
 """Link scenarios: a range of 2 m (every pair of the presets' paths comes within 1.6 m at some frame), and a
 quarter of what ``always`` sends over a link at ``fast`` (0.25 MB a round)."""

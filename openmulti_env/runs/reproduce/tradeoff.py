@@ -85,13 +85,33 @@ def learned_note() -> str:
 def write_tradeoff(out: Path, rows: list[dict], notes: str = "") -> dict[str, Path]:
     """``tradeoff.json`` (rows and per-policy means), ``tradeoff.md`` and ``tradeoff.png``."""
     out.mkdir(parents=True, exist_ok=True)
-    complete, pending = common_cells(rows)
-    unequal = not complete
-    if unequal:  # no cell has every policy yet: say so rather than show nothing
-        complete, pending = rows, []
+    complete, _, _ = compared_rows(rows)
     means = policy_means(complete)
     paths = {"json": out / "tradeoff.json", "md": out / "tradeoff.md", "png": out / "tradeoff.png"}
     write_json_atomic(paths["json"], {"table": "tradeoff", "rows": rows, "policies": means})
+    fronts = {key: _front(means, key) for key in CULLINGS}
+    text = "\n".join(["## tradeoff: completion ratio against bytes", "", *tradeoff_lines(rows), "", learned_note(), "",
+                       notes, ""])
+    tmp = paths["md"].with_name("tradeoff.md.tmp")
+    tmp.write_text(text)
+    tmp.replace(paths["md"])
+    save_tradeoff_plot(paths["png"], complete, means, fronts)
+    return paths
+
+
+def compared_rows(rows: list[dict]) -> tuple[list[dict], list[dict], bool]:
+    """(the rows the means are over, the rows left out, whether those compare unequal cells): the cells every
+    policy has run, or every row when no cell has every policy yet (said rather than showing nothing)."""
+    complete, pending = common_cells(rows)
+    if not complete:
+        return rows, [], True
+    return complete, pending, False
+
+
+def tradeoff_lines(rows: list[dict]) -> list[str]:
+    """The Markdown table of ``rows`` (one line per policy, means over the common cells) and which cells it is over."""
+    complete, pending, unequal = compared_rows(rows)
+    means = policy_means(complete)
     fronts = {key: _front(means, key) for key in CULLINGS}
     lines = ["| policy | runs | comp ratio [%] | MB sent (team) | of always's bytes | vs always [points] | Pareto "
              "| comp ratio, NICE-SLAM culling [%] | vs always [points] | Pareto |", "|---|---|---|---|---|---|---|---|---|---|"]
@@ -110,13 +130,7 @@ def write_tradeoff(out: Path, rows: list[dict], notes: str = "") -> dict[str, Pa
         waiting = sorted({(r["scene"], r["seed"]) for r in pending})
         said.append(f"Left out until every policy has run its cell: {len(pending)} runs on "
                     f"{', '.join(f'{scene} seed {seed}' for scene, seed in waiting)} (in tradeoff.json's rows).")
-    text = "\n".join(["## tradeoff: completion ratio against bytes", "", *lines, "", *said, "", learned_note(), "",
-                       notes, ""])
-    tmp = paths["md"].with_name("tradeoff.md.tmp")
-    tmp.write_text(text)
-    tmp.replace(paths["md"])
-    save_tradeoff_plot(paths["png"], complete, means, fronts)
-    return paths
+    return [*lines, "", *said]
 
 
 def _front(means: list[dict], key: str) -> set[int]:

@@ -118,9 +118,10 @@ def markdown_table(table: str, rows: list[dict], notes: str = "") -> str:
     return "\n".join(lines) + "\n"
 
 
-def method_lines(table: str, rows: list[dict]) -> list[str]:
-    """The scenes and seeds line and the method table of ``rows``."""
-    columns = COLUMNS[table]
+def method_lines(table: str, rows: list[dict], columns: list[tuple[str, str, float]] | None = None) -> list[str]:
+    """The scenes and seeds line and the method table of ``rows``: ``columns`` (header, row key, scale; default the
+    table's ``COLUMNS``) after method / success / agents / n, the paper's figures last."""
+    columns = COLUMNS[table] if columns is None else columns
     scenes = sorted({r["scene"] for r in rows})
     marked = [f"{s} (settings chosen here)" if s in TUNING_SCENES else s for s in scenes]
     seeds = sorted({r["seed"] for r in rows})
