@@ -3,8 +3,6 @@ DSGD acting only on vectors that arrived this round (``ConsistencyConfig.missing
 
 from __future__ import annotations
 
-import json
-import struct
 from dataclasses import replace
 
 import numpy as np
@@ -15,6 +13,7 @@ from mapping.team import Channel, ChannelConfig, ConsistencyConfig, MessageError
 from mapping.team.consistency import ConsistencyPairs, PairKey, degree_listing, metropolis_mix, metropolis_weights
 from mapping.team.messages import DegreeMessage, from_bytes, to_bytes
 from mapping.team.team import RoundPlan
+from tests.team_helpers import rewrite_header
 
 
 def _random_pairing(rng: np.random.Generator, n: int, objects: int = 6) -> list[list[PairKey]]:
@@ -73,14 +72,6 @@ def test_metropolis_weights_follow_the_listed_degrees():
         metropolis_mix(torch.zeros(1, 2), ConsistencyPairs(torch.tensor([0]), torch.zeros(1, 2)))
 
 
-def _rewrite_header(data: bytes, change) -> bytes:
-    """``data`` with its JSON header passed through ``change`` (a faulty or hostile sender)."""
-    start = len(b"OMMSG") + 1
-    (n,) = struct.unpack("<I", data[start:start + 4])
-    blob = json.dumps(change(json.loads(data[start + 4:start + 4 + n]))).encode()
-    return data[:start] + struct.pack("<I", len(blob)) + blob + data[start + 4 + n:]
-
-
 def _edit(header: dict, name: str, field: int, value) -> dict:
     next(entry for entry in header["arrays"] if entry[0] == name)[field] = value
     return header
@@ -98,7 +89,7 @@ def test_degree_messages_round_trip_and_malformed_ones_are_refused():
            "floats": (message, lambda h: _edit(h, "own_ids", 1, "float32"), "non-negative integers"),
            "missing": (message, lambda h: {**h, "arrays": h["arrays"][:2]}, "degrees is missing")}
     for m, change, match in bad.values():
-        data = to_bytes(m) if change is None else _rewrite_header(to_bytes(m), change)
+        data = to_bytes(m) if change is None else rewrite_header(to_bytes(m), change)
         with pytest.raises(MessageError, match=match):
             from_bytes(data)
     channel = Channel(3)

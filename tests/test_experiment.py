@@ -90,6 +90,38 @@ def test_a_run_record_of_the_version_before_the_tree_reads_as_the_same_run():
     assert read_checkpoint_identity({**old, "segmentation_errors": False}) != {**checkpoint_identity(tree, {}), "team": team}
 
 
+def test_one_short_spelling_per_field_and_older_spellings_only_in_older_records():
+    """Each field has its dotted path and at most one short spelling (the env's keyword; the short option where
+    ``openmulti run`` lists it); the second spellings of older versions are read from their records only."""
+
+    from openmulti_env.experiment.overrides import ALIASES, OLD_SPELLINGS
+    from openmulti_env.runs.cli import RUN_SHORT
+
+    twice = {path: names for path, names in _spellings(ALIASES).items() if len(names) > 1}
+    assert not twice, f"fields with more than one short spelling: {twice}"
+    assert not set(OLD_SPELLINGS) & set(ALIASES)
+    for name in OLD_SPELLINGS:
+        with pytest.raises(ConfigError, match=f"unknown option {name!r}"):
+            experiment("tiny", **{name: 2})
+    tree = experiment("tiny", scene="tiny", agents=3, workers=2)
+    team = as_record(asdict(resolved_team(tree, tree.team.mapping)))
+    old = {"scene": "tiny", "num_agents": 3, "agent_workers": 2, "preset": "tiny", "team": team}
+    assert read_checkpoint_identity(old) == {**checkpoint_identity(tree, {}), "team": team}
+    import argparse
+
+    subcommands = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
+    options = set(subcommands.choices["run"]._option_string_actions)
+    assert {"--" + n.replace("_", "-") for n in RUN_SHORT} <= options
+    assert not {"--float16", "--perfect-masks", "--changed-only", "--num-agents"} & options
+
+
+def _spellings(aliases: dict[str, str]) -> dict[str, list[str]]:
+    out: dict[str, list[str]] = {}
+    for name, path in aliases.items():
+        out.setdefault(path, []).append(name)
+    return out
+
+
 def test_a_record_written_before_a_neutral_setting_existed_still_resumes():
     """A record of this version that lacks a ``neutral_default`` setting (``channel.link_success``, added after
     runs were recorded) reads as the same run; one lacking any other setting is not trusted."""
@@ -99,6 +131,11 @@ def test_a_record_written_before_a_neutral_setting_existed_still_resumes():
     before = json.loads(json.dumps(now))
     del before["experiment"]["channel"]["link_success"]
     assert before != now and read_checkpoint_identity(before) == now
+    del before["team"]["exchange"]["codec"]  # a team resolved before the codec existed: the same run
+    assert read_checkpoint_identity(before) == now
+    other_team = json.loads(json.dumps(before))
+    del other_team["team"]["exchange"]["float16"]
+    assert read_checkpoint_identity(other_team) is None
     lacking_other = json.loads(json.dumps(before))
     del lacking_other["experiment"]["channel"]["success_probability"]
     assert read_checkpoint_identity(lacking_other) is None

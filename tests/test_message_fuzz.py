@@ -22,7 +22,9 @@ from mapping.model.observed import GRID_HEADER, SURFACE, ObservedSpace, Observed
 from mapping.model.observed_map import ObservedMaps
 from mapping.team import (Channel, InstancePayload, MessageError, MessageRules, ParameterMessage, RayMessage,
                           from_bytes, to_bytes)
+from mapping.team.codec import encode_vector
 from mapping.team.message_size import size_and_cap
+from mapping.team.wire import seal
 from mapping.team.messages import DegreeMessage, PointCloudMessage, replay_pixels
 
 COUNTS = param_counts(MappingConfig())
@@ -46,6 +48,20 @@ def _payload(iid: int, bank: str = "object", cloud: bool = True) -> InstancePayl
                            rng.normal(size=(20, 3)).astype(np.float32) if cloud else None, _observed())
 
 
+def _coded_payloads() -> list[InstancePayload]:
+    """Coded instances (``mapping.team.codec``): 8 bits whole, a 4-bit sparse delta named by positions, an
+    8-bit delta named by a mask with its feature left out (the receiver holds it)."""
+    rng = np.random.default_rng(5)
+    whole, sparse, masked = _payload(5), _payload(6, cloud=False), _payload(7, "structure", cloud=False)
+    n = COUNTS["object"]
+    whole.params_code, _ = encode_vector(whole.params, 8, 64)
+    whole.feature_code, _ = encode_vector(whole.caption_feature, 8, 64)
+    sparse.params_code, _ = encode_vector(sparse.params, 4, 32, rng.normal(size=n).astype(np.float32), 2, keep=0.01)
+    masked.params_code, _ = encode_vector(masked.params, 8, 64, np.zeros(COUNTS["structure"], np.float32), 1, keep=0.3)
+    masked.caption_feature = None
+    return [whole, sparse, masked]
+
+
 def _valid_messages() -> list[bytes]:
     pose = np.eye(4, dtype=np.float32)
     pose[:3, 3] = [1.0, 2.0, 0.5]
@@ -53,7 +69,8 @@ def _valid_messages() -> list[bytes]:
             to_bytes(RayMessage(0, 1, 3, np.stack([pose, np.eye(4, dtype=np.float32)]),
                                 (100.0, 100.0, 80.0, 60.0, 160, 120), 7, 32)),
             to_bytes(PointCloudMessage(0, 1, 3, np.zeros((5, 3), np.float32))),
-            to_bytes(DegreeMessage(0, 1, 3, np.array([3, 4]), np.array([1, 2]), np.array([1, 2])))]
+            to_bytes(DegreeMessage(0, 1, 3, np.array([3, 4]), np.array([1, 2]), np.array([1, 2]))),
+            to_bytes(ParameterMessage(0, 1, 3, _coded_payloads(), degree=2))]
 
 
 def _split(data: bytes) -> tuple[dict, bytes]:
@@ -120,7 +137,10 @@ def _assert_usable(message) -> None:
             assert inst.bank in COUNTS and len(inst.params) == COUNTS[inst.bank]
             assert np.all(np.isfinite(inst.params)) and math.isfinite(inst.frame_half) and inst.frame_half > 0
             assert 0.0 <= inst.confidence <= 1.0 and isinstance(inst.caption, str)
-            assert isinstance(inst.instance_id, int) and len(inst.caption_feature) == FEATURE_DIM
+            assert isinstance(inst.instance_id, int)
+            assert inst.caption_feature is None or len(inst.caption_feature) == FEATURE_DIM
+            if inst.params_code is not None:  # what the receiver allocates is the network's length
+                assert inst.params_code.length == COUNTS[inst.bank] and inst.params_code.bits in (4, 8, 16, 32)
             if inst.observed is not None:  # on the receiver's lattice, over the instance's box
                 assert inst.observed.cell_m == 0.05 and inst.observed.states.size <= RULES.max_observed_cells
                 first = inst.observed.cells_of(inst.bound_lo[None].astype(np.float64))[0]
@@ -130,21 +150,26 @@ def _assert_usable(message) -> None:
         replay_pixels(message)  # bounded
 
 
+def _decoded_usable(data: bytes) -> bool:
+    """Whether ``data`` decodes (then it must be usable: ``_assert_usable``) rather than being refused."""
+    try:
+        message = from_bytes(data, RULES)
+    except MessageError:
+        return False
+    _assert_usable(message)
+    return True
+
+
 def test_ten_thousand_structured_hostile_messages_are_refused_or_usable_and_never_raise_else():
     rng = np.random.default_rng(2026)
     valid = [_split(data) for data in _valid_messages()]
-    kinds = ["params", "rays", "points", "degrees"]
+    kinds = ["params", "rays", "points", "degrees", "params"]
     refused = delivered = 0
     for case in range(10_000):
         k = int(rng.integers(len(valid)))
         data = _mutate(*valid[k], rng)
-        try:
-            message = from_bytes(data, RULES)
-        except MessageError:
-            refused += 1
-        else:
-            delivered += 1
-            _assert_usable(message)
+        usable = _decoded_usable(data)
+        refused, delivered = refused + (not usable), delivered + usable
         channel = Channel(3, rules=RULES)
         with warnings.catch_warnings():  # one refusal warning per refused message
             warnings.simplefilter("ignore")
@@ -154,6 +179,34 @@ def test_ten_thousand_structured_hostile_messages_are_refused_or_usable_and_neve
         if d.message is not None:
             _assert_usable(d.message)
     assert refused > 7_000 and delivered > 100  # most mutations break a rule; some leave a usable message
+
+
+def test_two_thousand_hostile_sealed_messages_are_refused_or_usable():
+    """The lossless stage's envelope mutated: its method, announced length, compressed bytes cut or flipped,
+    and valid messages (coded ones too) sealed after a structured mutation: refused or usable, never else,
+    and nothing inflates past its limit."""
+    rng = np.random.default_rng(63)
+    valid = [_split(data) for data in (_valid_messages()[0], _valid_messages()[-1])]
+    refused = delivered = 0
+    for case in range(2000):
+        header, body = valid[int(rng.integers(2))]
+        data = seal(_mutate(header, body, rng) if rng.random() < 0.5 else _join(header, body),
+                    ("zlib", "zstd")[int(rng.integers(2))])
+        pick = rng.integers(4)
+        if pick == 0:  # the method
+            data = data[:5] + bytes([int(rng.integers(256))]) + data[6:]
+        elif pick == 1:  # the announced length
+            sizes = [0, 1, 100, len(data), 2**20, 2**40, 2**64 - 1]
+            data = data[:6] + struct.pack("<Q", sizes[int(rng.integers(len(sizes)))]) + data[14:]
+        elif pick == 2:  # the compressed bytes cut or flipped
+            data = bytearray(data[:int(rng.integers(14, len(data) + 1))])
+            for _ in range(int(rng.integers(0, 4))):
+                if len(data) > 14:
+                    data[int(rng.integers(14, len(data)))] = int(rng.integers(256))
+            data = bytes(data)
+        usable = _decoded_usable(data)
+        refused, delivered = refused + (not usable), delivered + usable
+    assert refused > 1000 and delivered > 50, (refused, delivered)
 
 
 def _set_meta(field: str, value):

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import json
-import struct
 from dataclasses import replace
 
 import numpy as np
@@ -16,6 +14,7 @@ from mapping.model.render import RayBundle
 from mapping.team import (Channel, ChannelConfig, ConsistencyConfig, InstancePayload, MessageError, ParameterMessage,
                           PlanError, RayMessage, RoundPlan, Team, TeamConfig, from_bytes, to_bytes)
 from mapping.team.arrival import InstanceView, align_arrivals
+from tests.team_helpers import CountingStream, rewrite_header, tiny_team
 from mapping.team.consistency import (ConsistencyPairs, consensus_penalty, dinno_dual_update, dinno_penalty,
                                       metropolis_mix)
 from mapping.team.cross_rendering import instance_render_consistency_loss, peer_render_targets, render_consistency_loss
@@ -53,13 +52,6 @@ def test_corrupt_messages_are_refused():
         from_bytes(data[:-10])
 
 
-def _rewrite_header(data: bytes, change) -> bytes:
-    """``data`` with its JSON header passed through ``change`` (what a faulty or hostile sender could send)."""
-    start = len(b"OMMSG") + 1
-    (n,) = struct.unpack("<I", data[start:start + 4])
-    header = change(json.loads(data[start + 4:start + 4 + n]))
-    blob = json.dumps(header).encode()
-    return data[:start] + struct.pack("<I", len(blob)) + blob + data[start + 4 + n:]
 
 
 def _set_array(name: str, field: int, value):
@@ -78,7 +70,7 @@ def _set_array(name: str, field: int, value):
 def test_malformed_messages_are_refused_naming_the_field(name, field, value, error):
     data = to_bytes(ParameterMessage(0, 1, 0, [_payload(cloud=True)]))
     with pytest.raises(MessageError, match=error):
-        from_bytes(_rewrite_header(data, _set_array(name, field, value)))
+        from_bytes(rewrite_header(data, _set_array(name, field, value)))
 
 
 def test_non_finite_parameters_and_bad_scalars_are_refused():
@@ -89,15 +81,15 @@ def test_non_finite_parameters_and_bad_scalars_are_refused():
         from_bytes(to_bytes(ParameterMessage(0, 1, 0, [bad])))
     data = to_bytes(ParameterMessage(0, 1, 0, [_payload()]))
     with pytest.raises(MessageError, match="field sender"):
-        from_bytes(_rewrite_header(data, lambda h: {**h, "scalars": {**h["scalars"], "sender": "x"}}))
+        from_bytes(rewrite_header(data, lambda h: {**h, "scalars": {**h["scalars"], "sender": "x"}}))
     with pytest.raises(MessageError, match="poses: shape"):
         rays = to_bytes(RayMessage(0, 1, 0, np.eye(4, dtype=np.float32)[None], (1.0, 1.0, 0.5, 0.5, 2, 2), 3, 4))
-        from_bytes(_rewrite_header(rays, _set_array("poses", 2, [2, 8])))
+        from_bytes(rewrite_header(rays, _set_array("poses", 2, [2, 8])))
 
 
 def test_the_channel_counts_a_malformed_message_as_dropped_and_never_applies_it():
     channel = Channel(2)
-    data = _rewrite_header(to_bytes(ParameterMessage(0, 1, 0, [_payload()])), _set_array("0.box", 2, [3, 3]))
+    data = rewrite_header(to_bytes(ParameterMessage(0, 1, 0, [_payload()])), _set_array("0.box", 2, [3, 3]))
     with pytest.warns(UserWarning, match="refused: array 0.box"):
         d = channel.transmit_bytes(0, 1, "params", data)
     assert d.status == "dropped" and d.message is None
@@ -312,33 +304,12 @@ def test_arrival_merges_two_halves_of_one_sofa_but_not_a_mug_against_a_book():
 
 
 # ---- rounds on the tiny world ----------------------------------------------------------------------
-class _CountingStream:
-    def __init__(self, inner):
-        self.inner, self.max_read = inner, -1
-
-    def __len__(self):
-        return len(self.inner)
-
-    def read(self, i):
-        self.max_read = max(self.max_read, i)
-        return self.inner.read(i)
 
 
-def _tiny_team(tiny_world, **overrides):
-    from openmulti_env.experiment.presets import mapping_config
-    from openmulti_env.world.stream import world_streams, world_vocabulary
-
-    streams = [_CountingStream(s) for s in world_streams(tiny_world, seed=0, segmentation_errors=False)]
-    channel = overrides.pop("channel", ChannelConfig())
-    mapping = replace(mapping_config("tiny"), iterations_per_keyframe=2, refit_steps=10,
-                      global_frame=overrides.pop("global_frame", None))
-    overrides.setdefault("consistency", ConsistencyConfig(iterations=2, rays_per_pose=64))
-    config = TeamConfig(mapping=mapping, frames_per_round=4, **overrides)
-    return Team(streams, config, world_vocabulary(tiny_world), seed=0, channel=channel, device="cpu"), streams
 
 
 def test_bad_plans_get_a_clear_error(tiny_world):
-    team, _ = _tiny_team(tiny_world)
+    team, _ = tiny_team(tiny_world)
     with pytest.raises(PlanError, match="must be \\(2, 2\\)"):
         team.round(RoundPlan(np.ones((3, 3), bool), np.zeros((2, 2), bool)))
     with pytest.raises(PlanError, match="self-links"):
@@ -348,9 +319,9 @@ def test_bad_plans_get_a_clear_error(tiny_world):
 
 
 def test_rounds_are_causal_exchange_adopts_and_a_dropped_message_changes_nothing(tiny_world):
-    team, streams = _tiny_team(tiny_world)
-    silent, _ = _tiny_team(tiny_world)
-    lossy = Team([_CountingStream(s.inner) for s in streams], team.config, team.members[0].vocabulary, seed=0,
+    team, streams = tiny_team(tiny_world)
+    silent, _ = tiny_team(tiny_world)
+    lossy = Team([CountingStream(s.inner) for s in streams], team.config, team.members[0].vocabulary, seed=0,
                  channel=ChannelConfig(success_probability=0.0), device="cpu")
     for r in range(2):
         report = team.round(RoundPlan.always(2))
@@ -371,10 +342,10 @@ def test_rounds_are_causal_exchange_adopts_and_a_dropped_message_changes_nothing
 
 
 def test_team_checkpoint_round_trip(tiny_world, tmp_path):
-    team, _ = _tiny_team(tiny_world)
+    team, _ = tiny_team(tiny_world)
     team.round(RoundPlan.always(2))
     path = team.save(tmp_path / "team.pt", extra={"policy": "always"})
-    resumed, _ = _tiny_team(tiny_world)
+    resumed, _ = tiny_team(tiny_world)
     assert resumed.load(path) == {"policy": "always"} and resumed.round_index == 1
     a, b = team.round(RoundPlan.always(2)), resumed.round(RoundPlan.always(2))
     assert a.bytes_sent == b.bytes_sent
@@ -390,7 +361,7 @@ def test_an_unknown_form_of_eq13_is_refused_by_name():
 
 @pytest.mark.parametrize("ray_poses", ["current", "mapped"])
 def test_ray_messages_carry_the_views_they_are_asked_for(tiny_world, ray_poses):
-    team, streams = _tiny_team(tiny_world, consistency=ConsistencyConfig(iterations=2, rays_per_pose=64,
+    team, streams = tiny_team(tiny_world, consistency=ConsistencyConfig(iterations=2, rays_per_pose=64,
                                                                           ray_poses=ray_poses))
     for _ in range(2):
         team.round(RoundPlan.never(2))
@@ -419,9 +390,9 @@ def _paired_distance(team) -> float:
 def test_local_consensus_pulls_paired_instances_together_in_the_local_iterations(tiny_world):
     # rho large enough that the pull shows within the few iterations of a tiny run
     rho = 30.0
-    plain, _ = _tiny_team(tiny_world, consistency=ConsistencyConfig(iterations=2, rays_per_pose=64, rho=rho,
+    plain, _ = tiny_team(tiny_world, consistency=ConsistencyConfig(iterations=2, rays_per_pose=64, rho=rho,
                                                                     local_consensus=False))
-    local, _ = _tiny_team(tiny_world, consistency=ConsistencyConfig(iterations=2, rays_per_pose=64, rho=rho,
+    local, _ = tiny_team(tiny_world, consistency=ConsistencyConfig(iterations=2, rays_per_pose=64, rho=rho,
                                                                     local_consensus=True))
     plan = RoundPlan.always(2)
     for _ in range(2):
@@ -435,7 +406,7 @@ def test_local_consensus_pulls_paired_instances_together_in_the_local_iterations
 def test_a_lost_first_message_is_sent_again_with_its_clouds(tiny_world):
     # round 0: every parameter message is lost; round 1: all arrive. The receiver must get each
     # instance's cloud then (only a delivered message books what the peer holds), and align them.
-    team, _ = _tiny_team(tiny_world)
+    team, _ = tiny_team(tiny_world)
     team.channel.success = np.zeros((2, 2))
     lost = team.round(RoundPlan(~np.eye(2, dtype=bool), np.zeros((2, 2), bool)))
     assert lost.delivered == 0 and lost.dropped == 2
@@ -459,7 +430,7 @@ def test_each_algorithm_takes_its_own_penalty_weight():
 
 
 def test_a_message_over_budget_books_nothing(tiny_world):
-    team, _ = _tiny_team(tiny_world, channel=ChannelConfig(budget_mb=1e-5))
+    team, _ = tiny_team(tiny_world, channel=ChannelConfig(budget_mb=1e-5))
     report = team.round(RoundPlan(~np.eye(2, dtype=bool), np.zeros((2, 2), bool)))
     assert report.over_budget == 2 and report.delivered == 0
     for m in team.members:
@@ -470,7 +441,7 @@ def test_a_message_over_budget_books_nothing(tiny_world):
 def test_merging_a_piece_into_an_instance_without_a_network_keeps_ids_in_step(tiny_world):
     # an arrival can merge my piece (with a network) into an instance seen in no keyframe yet (none):
     # the piece's network must move to the surviving id, never stay alive under a retired one
-    team, _ = _tiny_team(tiny_world)
+    team, _ = tiny_team(tiny_world)
     team.round(RoundPlan.never(2))
     m = team.members[0]
     piece = next(i for i in m.mapper.live_ids() if m.mapper.keyframes.has_pixels(i))
@@ -489,7 +460,7 @@ def test_a_global_map_covers_the_boxes_its_peers_mapped(tiny_world):
     as any peer's frames did, not stop where its own frames did."""
     from mapping.team.global_map import GLOBAL_INSTANCE_ID, scene_frame
 
-    team, _ = _tiny_team(tiny_world, global_map=True, global_frame=scene_frame(tiny_world.scene.size_m))
+    team, _ = tiny_team(tiny_world, global_map=True, global_frame=scene_frame(tiny_world.scene.size_m))
     team.round(RoundPlan.never(2))
     boxes = [m.mapper.slots[GLOBAL_INSTANCE_ID].bound for m in team.members]
     union_lo, union_hi = np.minimum(boxes[0].lo, boxes[1].lo), np.maximum(boxes[0].hi, boxes[1].hi)
@@ -508,9 +479,9 @@ def test_a_global_maps_agents_start_from_one_network_and_instance_maps_from_thei
         return [m.mapper.init_generator.get_state() for m in team.members]
 
     frame = scene_frame(tiny_world.scene.size_m)
-    shared, _ = _tiny_team(tiny_world, global_map=True, global_frame=frame)
-    own, _ = _tiny_team(tiny_world, global_map=True, global_frame=frame, shared_global_init=False)
-    instance, _ = _tiny_team(tiny_world)
+    shared, _ = tiny_team(tiny_world, global_map=True, global_frame=frame)
+    own, _ = tiny_team(tiny_world, global_map=True, global_frame=frame, shared_global_init=False)
+    instance, _ = tiny_team(tiny_world)
     assert torch.equal(*init_states(shared))
     assert not torch.equal(*init_states(own)) and not torch.equal(*init_states(instance))
     assert torch.equal(init_states(shared)[0], init_states(own)[0])  # agent 0's draw is as before
@@ -525,7 +496,7 @@ def test_a_global_maps_agents_start_from_one_network_and_instance_maps_from_thei
     assert torch.equal(*[p.member.mapper.init_generator.get_state() for p in remote])
 
 
-class _ShortStream(_CountingStream):
+class _ShortStream(CountingStream):
     """The first ``n`` frames of a stream: a recording shorter than the preset's path."""
 
     def __init__(self, inner, n):
@@ -538,10 +509,10 @@ class _ShortStream(_CountingStream):
 
 def test_a_short_stream_trains_the_missing_local_steps_after_its_last_frame_and_a_full_one_does_not(tiny_world):
     full_path = 6 * 2  # tiny: 24 frames, a keyframe every 4th, 2 iterations each in _tiny_team
-    short, streams = _tiny_team(tiny_world, min_local_steps=full_path)
+    short, streams = tiny_team(tiny_world, min_local_steps=full_path)
     short = Team([_ShortStream(s.inner, 8) for s in streams], short.config, short.members[0].vocabulary, seed=0,
                  device="cpu")
-    plain, _ = _tiny_team(tiny_world)
+    plain, _ = tiny_team(tiny_world)
     plain = Team([_ShortStream(s.inner, 8) for s in streams], plain.config, plain.members[0].vocabulary, seed=0,
                  device="cpu")
     short.round(RoundPlan.never(2))
@@ -563,8 +534,8 @@ def test_a_short_stream_trains_the_missing_local_steps_after_its_last_frame_and_
     uneven.round(RoundPlan.never(2))
     assert uneven.done and [m.mapper.steps for m in uneven.members] == [full_path, full_path]
     # a stream as long as the preset's path had all its steps: the setting changes nothing
-    whole, _ = _tiny_team(tiny_world, min_local_steps=full_path, min_keyframes=6)
-    base, _ = _tiny_team(tiny_world)
+    whole, _ = tiny_team(tiny_world, min_local_steps=full_path, min_keyframes=6)
+    base, _ = tiny_team(tiny_world)
     while not whole.done:
         whole.round(RoundPlan.always(2))
         base.round(RoundPlan.always(2))
@@ -578,7 +549,7 @@ def test_a_short_stream_takes_keyframes_more_often_down_to_every_frame(tiny_worl
     config = TeamConfig(mapping=replace(TeamConfig().mapping, keyframe_every=5), min_keyframes=24)
     assert [config.keyframe_every(n) for n in (200, 120, 100, 50, 29, 3)] == [5, 5, 4, 2, 1, 1]
     assert replace(config, min_keyframes=0).keyframe_every(29) == 5
-    team, streams = _tiny_team(tiny_world, min_keyframes=6)  # tiny: a keyframe every 4th of 24 frames
+    team, streams = tiny_team(tiny_world, min_keyframes=6)  # tiny: a keyframe every 4th of 24 frames
     short = Team([_ShortStream(s.inner, 12) for s in streams], team.config, team.members[0].vocabulary, seed=0,
                  device="cpu")
     assert [m.mapper.config.keyframe_every for m in short.members] == [2, 2]
@@ -593,7 +564,7 @@ def test_minimums_must_not_be_negative(name):
 
 def test_first_keyframe_and_after_stream_iterations_are_added_once(tiny_world):
     """MACIM's budget: extra iterations in the round of an agent's first keyframe and after its last frame."""
-    team, streams = _tiny_team(tiny_world)
+    team, streams = tiny_team(tiny_world)
     mapping = replace(team.config.mapping, iterations_first_keyframe=5, iterations_after_stream=3)
     short = Team([_ShortStream(s.inner, 8) for s in streams], replace(team.config, mapping=mapping),
                  team.members[0].vocabulary, seed=0, device="cpu")

@@ -65,8 +65,14 @@ def settings_record(config) -> dict:
         if not dataclasses.is_dataclass(obj):
             return obj
         return {f.name: strip(getattr(obj, f.name)) for f in dataclasses.fields(obj)
-                if not (f.metadata.get("neutral_default") and getattr(obj, f.name) == f.default)}
+                if not (f.metadata.get("neutral_default") and getattr(obj, f.name) == default_of(f))}
     return as_record(strip(config))
+
+
+def default_of(f: dataclasses.Field):
+    """A field's default, made by its factory when it has one (a whole node such as ``team.exchange.codec``)."""
+    return f.default_factory() if f.default is dataclasses.MISSING and f.default_factory is not dataclasses.MISSING \
+        else f.default
 
 
 def neutral_default_paths(config, prefix: tuple[str, ...] = ()) -> set[tuple[str, ...]]:
@@ -75,7 +81,7 @@ def neutral_default_paths(config, prefix: tuple[str, ...] = ()) -> set[tuple[str
     paths: set[tuple[str, ...]] = set()
     for f in dataclasses.fields(config):
         value = getattr(config, f.name)
-        if f.metadata.get("neutral_default") and value == f.default:
+        if f.metadata.get("neutral_default") and value == default_of(f):
             paths.add(prefix + (f.name,))
         elif dataclasses.is_dataclass(value):
             paths |= neutral_default_paths(value, prefix + (f.name,))

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import warnings
 from dataclasses import dataclass, replace
+from typing import Callable
 
 import numpy as np
 
@@ -66,14 +67,16 @@ class Channel:
             return float("inf")
         return max(0.0, self.budget_bytes - float(self.bytes_sent[agent]))
 
-    def transmit(self, message: Message) -> Delivery:
+    def transmit(self, message: Message, accept: Callable[[Message], str | None] | None = None) -> Delivery:
         """Serialise, charge the sender, draw success, and decode on arrival."""
-        return self.transmit_bytes(message.sender, message.receiver, message.kind, to_bytes(message))
+        return self.transmit_bytes(message.sender, message.receiver, message.kind, to_bytes(message), accept)
 
-    def transmit_bytes(self, sender: int, receiver: int, kind: str, data: bytes) -> Delivery:
+    def transmit_bytes(self, sender: int, receiver: int, kind: str, data: bytes,
+                       accept: Callable[[Message], str | None] | None = None) -> Delivery:
         """``transmit`` for a message already serialised (e.g. by another process). Bytes that do not
-        decode, or whose fields are outside ``rules`` or name another link (``MessageError``), cost their
-        sender as sent and count as dropped: never applied."""
+        decode, or whose fields are outside ``rules`` or name another link (``MessageError``), or that the
+        receiver cannot apply (``accept`` returns why: a delta to a copy it does not hold), cost their sender
+        as sent and count as dropped: never applied."""
         i, j = sender, receiver
         if not (0 <= i < self.num_agents and 0 <= j < self.num_agents) or i == j:
             raise ValueError(f"message from {i} to {j}: agents are 0..{self.num_agents - 1} and differ")
@@ -90,6 +93,9 @@ class Channel:
                                    f"{i} -> {j}")
             if message.kind != kind:
                 raise MessageError(f"a {message.kind} message sent as {kind}")
+            problem = None if accept is None else accept(message)
+            if problem is not None:
+                raise MessageError(problem)
         except MessageError as exc:
             warnings.warn(f"message {kind} from agent_{i} to agent_{j} refused: {exc}", stacklevel=2)
             return Delivery(i, j, kind, DROPPED, len(data), None)

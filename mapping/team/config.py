@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from mapping.config_fields import bounded
+from mapping.config_fields import NEUTRAL_DEFAULT, bounded
 from mapping.model.agent_config import MappingConfig
 from mapping.fusion.online import OnlineFusionConfig
 from mapping.team.arrival import ArrivalConfig
@@ -96,8 +96,51 @@ class ConsistencyConfig:
 
 
 @dataclass(frozen=True)
+class CodecConfig:
+    """How a parameter message codes what it carries (``mapping.team.codec``; docs/codec.md). The defaults
+    send every vector whole as float32 with no compression, as before the codec existed."""
+
+    bits: int = field(default=32, metadata=bounded(4, 32))
+    """Bits of each network value sent: 32 (float32), 16 (float16), 8 or 4 (integers with a float32 scale per
+    ``block`` values)."""
+    feature_bits: int = field(default=32, metadata=bounded(4, 32))
+    """Bits of each caption-feature value sent (as ``bits``)."""
+    block: int = field(default=64, metadata=bounded(1, 65536))
+    """Values that share one scale at 4 and 8 bits (a scale costs 4 bytes)."""
+    delta: bool = False
+    """Send the difference to the copy the receiver acknowledged (the first copy goes whole); the receiver
+    adds it to its copy, so both ends hold the same vector."""
+    keep: float = field(default=1.0, metadata=bounded(0, 1, low_open=True))
+    """Share of a delta's entries sent, the largest first; the others stay in the next delta (error feedback:
+    delayed, never lost). 1 sends them all."""
+    unchanged_features: bool = True
+    """With ``delta``, leave out a caption feature the receiver holds unchanged (it keeps its copy)."""
+    lossless: str = "none"
+    """A lossless stage over the whole message: none, zlib or zstd."""
+
+    def __post_init__(self) -> None:
+        from mapping.team.codec import BITS  # noqa: PLC0415  (the codec's own table)
+        from mapping.team.wire import LOSSLESS  # noqa: PLC0415
+
+        for name in ("bits", "feature_bits"):
+            if getattr(self, name) not in BITS:
+                raise ValueError(f"team.exchange.codec.{name} must be one of {BITS}, got {getattr(self, name)!r}")
+        if self.lossless not in LOSSLESS:
+            raise ValueError(f"team.exchange.codec.lossless must be one of {LOSSLESS}, got {self.lossless!r}")
+        if self.keep < 1.0 and not self.delta:
+            raise ValueError("team.exchange.codec.keep < 1 leaves entries of a delta out: it needs "
+                             "team.exchange.codec.delta=true")
+
+    @property
+    def active(self) -> bool:
+        """Whether messages are coded at all (False: today's float32 format, bit for bit)."""
+        return self != CodecConfig()
+
+
+@dataclass(frozen=True)
 class ExchangeConfig:
     """What a parameter message carries."""
+
 
     float16: bool = False
     """Send network vectors and features as float16 (half the bytes)."""
@@ -118,6 +161,13 @@ class ExchangeConfig:
     point_clouds: bool = False
     """Point-cloud sharing (Table VI's baseline): a "send parameters" link carries the sender's
     observed points so far (``cloud_voxel_m`` down-sampled) instead; the receiver learns nothing from it."""
+    codec: CodecConfig = field(default_factory=CodecConfig, metadata=NEUTRAL_DEFAULT)
+    """How its vectors and its bytes are coded (``team.exchange.codec.*``)."""
+
+    def __post_init__(self) -> None:
+        if self.float16 and self.codec.active:
+            raise ValueError("team.exchange.float16 and team.exchange.codec both set how vectors travel: give "
+                             "team.exchange.codec.bits=16 instead of float16")
 
 
 @dataclass(frozen=True)

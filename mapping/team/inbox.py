@@ -8,6 +8,8 @@ A mixin of ``TeamMember``: the state it reads and writes is the member's (``mapp
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import torch
 
@@ -28,6 +30,8 @@ class Inbox:
         peer = message.sender
         held, held_at = self.held.setdefault(peer, {}), self.held_at.setdefault(peer, {})
         matches = self.matches.setdefault(peer, {})
+        message = replace(message, instances=[resolved_payload(inst, held.get(inst.instance_id))
+                                              for inst in message.instances])
         for inst in message.instances:
             held[inst.instance_id] = inst
             held_at[inst.instance_id] = message.round
@@ -74,6 +78,22 @@ class Inbox:
             self.mapper.set_frames(frames)  # one batched refit per bank
         counts.refit = len(frames)
         return counts
+
+    def arrival_problem(self, message: ParameterMessage) -> str | None:
+        """Why a coded message cannot be applied here, or None: a delta to a copy this agent does not hold
+        (another round's, or none), or a feature left out that it never received. Checked when the message
+        arrives, before its sender is told it was delivered: refused, both ends stay on the last copy."""
+        if not isinstance(message, ParameterMessage):
+            return None
+        held, held_at = self.held.get(message.sender, {}), self.held_at.get(message.sender, {})
+        for inst in message.instances:
+            base = None if inst.params_code is None else inst.params_code.base
+            if base is not None and (inst.instance_id not in held or held_at.get(inst.instance_id) != base):
+                return (f"instance {inst.instance_id}: a delta to its copy of round {base}, this agent holds "
+                        f"{'none' if inst.instance_id not in held else 'round ' + str(held_at.get(inst.instance_id))}")
+            if inst.caption_feature is None and inst.instance_id not in held:
+                return f"instance {inst.instance_id}: its feature was left out, this agent never received it"
+        return None
 
     def _receive_global(self, message: ParameterMessage) -> AlignmentCounts:
         """Global maps share one frame (the scene box): the peer's network is this agent's global
@@ -132,6 +152,18 @@ class Inbox:
         """A ray message arrived: its last pose is where its sender was (all a member knows of its peers'
         positions)."""
         self.peer_positions[message.sender] = (message.round, np.asarray(message.poses[-1][:3, 3], np.float64))
+
+
+def resolved_payload(payload: InstancePayload, copy: InstancePayload | None) -> InstancePayload:
+    """``payload`` as the receiver holds it: a delta added to its ``copy``'s vector (float32, the sender's
+    arithmetic), a left-out feature taken from the copy, the codes dropped (``arrival_problem`` checked first)."""
+    if payload.params_code is None and payload.caption_feature is not None:
+        return payload
+    params = payload.params
+    if payload.params_code is not None and payload.params_code.base is not None:
+        params = (np.asarray(copy.params, np.float32) + params).astype(np.float32)
+    feature = copy.caption_feature if payload.caption_feature is None else payload.caption_feature
+    return replace(payload, params=params, caption_feature=feature, params_code=None, feature_code=None)
 
 
 def payload_frame(payload: InstancePayload) -> InstanceFrame:

@@ -13,6 +13,7 @@ delivered one gave the peer), ``receive_parameters`` (hold, align on arrival, ad
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass, replace
 from typing import Callable, Protocol, Sequence
@@ -28,6 +29,7 @@ from mapping.perception.types import FrameSegmentation
 from mapping.perception.vocabulary import Vocabulary
 from mapping.team.agreement import Agreement, PenaltyReading
 from mapping.team.config import TeamConfig
+from mapping.team.codec import vector_bytes
 from mapping.team.consistency import PairKey
 from mapping.team.global_map import as_global_image, global_entry
 from mapping.team.inbox import Inbox
@@ -139,11 +141,12 @@ class TeamMember(StreamReader, Outbox, Inbox, Agreement):
         self.sent_vectors: dict[int, dict[int, np.ndarray]] = {}
         self.sent_cloud_points: dict[int, dict[int, int]] = {}
         self.sent_rounds: dict[int, dict[int, int]] = {}  # peer -> own id -> round its vector last reached the peer
+        self.sent_features: dict[int, dict[int, np.ndarray]] = {}  # peer -> own id -> its caption feature there (codec)
         self.duals: dict[str, torch.Tensor] = {}
         self.mixing_weights: dict[PairKey, float] = {}  # DSGD: the weight W_kj of each edge mixed last round
         self.peer_positions: dict[int, tuple[int, np.ndarray]] = {}  # peer -> (round, (3,) position) from its rays
         self._shadow: dict[int, tuple[int, list, list]] = {}
-        self._unacknowledged: dict[int, tuple[dict, dict, dict]] = {}  # receiver -> bookkeeping of the message in flight
+        self._unacknowledged: dict[int, tuple[dict, dict, dict, dict]] = {}  # receiver -> bookkeeping of the message in flight
         self.delivered_round: dict[str, dict[int, int]] = {"params": {}, "rays": {}, "points": {}}  # kind -> peer -> round
         self._last_position: np.ndarray | None = None
         self.born_round: dict[int, int] = {}  # own id -> round it first appeared in a snapshot of this map
@@ -233,7 +236,6 @@ class TeamMember(StreamReader, Outbox, Inbox, Agreement):
         tolerance = self.config.exchange.up_to_date_tolerance
         exported = {iid: self.mapper.export_instance(iid) for iid in self.shareable_ids()}
         current = {iid: inst.params for iid, inst in exported.items()}
-        element = 2 if self.config.exchange.float16 else 4
         for iid in current:
             self.born_round.setdefault(iid, self.round_seen)
         states, per_instance = {}, {}
@@ -253,8 +255,17 @@ class TeamMember(StreamReader, Outbox, Inbox, Agreement):
             per_instance[peer] = tuple(priority_order([InstanceOnLink(
                 iid, iid not in held, change, rounds.get(iid), iid in shared, self.confidence_of(iid),
                 float(np.linalg.norm(exported[iid].bound_hi - exported[iid].bound_lo)), self.born_round[iid],
-                int(exported[iid].params.size * element)) for iid, change in zip(current, changes)]))
-        return states, per_instance, int(sum(p.size for p in current.values()) * element)
+                self.vector_wire_bytes(exported[iid].params.size, iid in held)) for iid, change in zip(current, changes)]))
+        return states, per_instance, sum(self.vector_wire_bytes(p.size, False) for p in current.values())
+
+    def vector_wire_bytes(self, length: int, has_copy: bool) -> int:
+        """Bytes one network vector of ``length`` values takes in a message: float32 or float16 whole, or as the
+        codec writes it (a delta's kept share when the peer holds a copy)."""
+        c = self.config.exchange.codec
+        if not c.active:
+            return int(length * (2 if self.config.exchange.float16 else 4))
+        kept = max(1, math.ceil(c.keep * length)) if c.delta and has_copy and c.keep < 1 else None
+        return vector_bytes(length, c.bits, c.block, kept)
 
     def confidence_of(self, iid: int) -> float:
         """The instance's confidence (eq. 1-2; a peer's when alignment gave it a more confident meaning)."""

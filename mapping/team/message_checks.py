@@ -20,6 +20,9 @@ from mapping.team.wire import MessageError, is_count
 BANKS = ("object", "structure")
 """The instance network banks a payload may name (``mapping.model.agent``)."""
 META_FIELDS = frozenset({"id", "bank", "half", "origin", "version", "caption", "confidence", "cloud", "observed"})
+CODE_FIELDS = frozenset({"params_code", "feature_code"})
+"""Scalars a coded instance adds (``mapping.team.codec``): how its vector and its feature travel; a feature
+left out because the receiver holds it unchanged is ``"feature_code": "held"``."""
 GRID_SLACK_CELLS = 1
 """How many cells an observed grid may start before, or end after, its instance's box on each axis: the box
 travels as float32 corners, the grid was made from the float64 box."""
@@ -45,6 +48,8 @@ class MessageRules:
             would still decode to 512 MB; a room's instances at 5 cm announce a few million cells in all (every
             box of a 12 m x 12 m x 3 m room spanning all of it: 3.5 M each), so 2^26 leaves room for about 19
             such boxes.
+        max_vector_values: the longest coded vector when ``param_counts`` or ``feature_dim`` leave it open (a
+            sparse delta names its length: without a bound, a few bytes could ask for any).
     """
 
     num_agents: int | None = None
@@ -57,6 +62,7 @@ class MessageRules:
     max_observed_cells: int = MAX_CELLS
     max_cloud_points: int = 1 << 20
     max_message_cells: int = 1 << 26
+    max_vector_values: int = 1 << 24
 
 
 @dataclass(frozen=True)
@@ -72,6 +78,8 @@ class InstanceMeta:
     confidence: float
     cloud: bool
     observed: bool
+    params_code: dict | None = None
+    feature_code: dict | str | None = None
 
 
 def count_field(scalars: dict, name: str, upper: int | None = None) -> int:
@@ -144,8 +152,8 @@ def checked_intrinsics(value, rules: MessageRules) -> tuple[float, float, float,
 
 def instance_meta(k: int, meta, rules: MessageRules) -> InstanceMeta:
     """Instance ``k``'s scalar fields, each checked for type and range."""
-    if not isinstance(meta, dict) or set(meta) != META_FIELDS:
-        got = sorted(meta)[:10] if isinstance(meta, dict) else type(meta).__name__
+    if not isinstance(meta, dict) or not META_FIELDS <= set(meta) <= META_FIELDS | CODE_FIELDS:
+        got = sorted(meta)[:12] if isinstance(meta, dict) else type(meta).__name__
         raise MessageError(f"field instances[{k}]: expected the fields {sorted(META_FIELDS)}, got {got}")
     banks = BANKS if rules.param_counts is None else tuple(rules.param_counts)
     if meta["bank"] not in banks:
@@ -158,12 +166,17 @@ def instance_meta(k: int, meta, rules: MessageRules) -> InstanceMeta:
         if not isinstance(meta[flag], bool):
             raise MessageError(f"field instances[{k}].{flag}: expected true or false")
     where = f"instances[{k}]."
+    params_code, feature_code = meta.get("params_code"), meta.get("feature_code")
+    if params_code is not None and not isinstance(params_code, dict):
+        raise MessageError(f"field {where}params_code: expected the code's fields")
+    if feature_code is not None and not (isinstance(feature_code, dict) or feature_code == "held"):
+        raise MessageError(f"field {where}feature_code: expected the code's fields or 'held'")
     origin_limit = None if rules.num_agents is None else rules.num_agents - 1
     return InstanceMeta(_count(meta, "id", where), meta["bank"],
                         finite_number(meta["half"], where + "half", 1e-6, 1e4),
                         _count(meta, "origin", where, origin_limit), _count(meta, "version", where),
                         caption, finite_number(meta["confidence"], where + "confidence", 0.0, 1.0), meta["cloud"],
-                        meta["observed"])
+                        meta["observed"], params_code, feature_code)
 
 
 def checked_observed(arrays: dict[str, np.ndarray], k: int, lo: np.ndarray, hi: np.ndarray,

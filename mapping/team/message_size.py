@@ -15,6 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from mapping.team.codec import coded_parts
 from mapping.model.observed import GRID_HEADER, ObservedSpaceError, box_cells, grid_header
 from mapping.team.message_checks import GRID_SLACK_CELLS, InstanceMeta, MessageRules, instance_meta
 from mapping.team.wire import ArrayEntry, MessageError, array_view, read_message
@@ -59,7 +60,7 @@ def message_shares(metas: list[InstanceMeta], table: dict[str, ArrayEntry], body
     """Every part of the message with its share, read from its array table and its grids' headers only; an
     array no instance claims has a share of 0."""
     shares = [share for k, meta in enumerate(metas) for share in instance_shares(k, meta, table, body, rules)]
-    claimed = {f"{k}.{part}" for k in range(len(metas)) for part in PARTS}
+    claimed = {name for k in range(len(metas)) for part in PARTS for name in (f"{k}.{part}", *coded_parts(f"{k}.{part}"))}
     return shares + [Share(name[:80], entry.size, 0, f"not a part of the message's {len(metas)} instances")
                      for name, entry in table.items() if name not in claimed]
 
@@ -111,8 +112,10 @@ def instance_shares(k: int, meta: InstanceMeta, table: dict[str, ArrayEntry], bo
 
 def array_share(name: str, table: dict[str, ArrayEntry], values: int | None, why: str) -> Share:
     """Array ``name``'s bytes against ``values`` of the widest dtype (None: a setting the receiver leaves
-    open, bounded by the bytes that arrived, as an array never decodes past them)."""
-    used = table[name].size if name in table else 0
+    open, bounded by the bytes that arrived, as an array never decodes past them). A coded part
+    (``codec.coded_parts``) counts its arrays together; what it decodes to is checked by ``codec.read_coded``
+    (its length is the receiver's, or at most ``MessageRules.max_vector_values``)."""
+    used = sum(table[n].size for n in (name, *coded_parts(name)) if n in table)
     if values is None:
         return Share(name, used, used, "any length: its own bytes")
     return Share(name, used, WIDEST_VALUE * values, why)

@@ -16,7 +16,8 @@ for DSGD:
   and its degree per instance, so that both ends of an edge use the same Metropolis weight
   (``mapping.team.consistency``).
 
-The bytes are ``mapping.team.wire``'s format; parameters may travel as float16 (``encode_params``).
+The bytes are ``mapping.team.wire``'s format; parameters may travel as float16, or coded
+(``mapping.team.codec``: quantised, as deltas to the receiver's copy, sparsified, the whole message compressed).
 ``from_bytes`` checks every field against what the receiving team can use (``MessageRules``): a message
 that fails is refused with ``MessageError`` naming the field, and the channel counts it as dropped.
 """
@@ -30,8 +31,9 @@ import numpy as np
 from mapping.model.observed import ObservedSpace
 from mapping.team.message_checks import (InstanceMeta, MessageRules, agent_field, checked_array, checked_ids,
                                          checked_intrinsics, checked_observed, count_field, instance_meta, rigid_poses)
+from mapping.team.codec import CodedVector, coded_arrays, decode_vector, read_coded
 from mapping.team.message_size import check_decoded_size
-from mapping.team.wire import ArrayEntry, MessageError, decode_arrays, pack, read_message
+from mapping.team.wire import ENVELOPE, LOSSLESS, ArrayEntry, MessageError, decode_arrays, pack, read_message, seal
 
 __all__ = ["DegreeMessage", "InstancePayload", "Message", "MessageError", "MessageRules", "ParameterMessage",
            "PointCloudMessage", "RayMessage", "from_bytes", "replay_pixels", "to_bytes"]
@@ -43,12 +45,16 @@ class InstancePayload:
     Attributes:
         instance_id: the sender's id for it.
         bank: ``object`` or ``structure`` (network width).
-        params: (D,) float16 or float32 network vector.
+        params: (D,) float16 or float32 network vector (arrived as a delta: the delta, until the receiver adds
+            its copy: ``params_code.base`` says which).
         bound_lo, bound_hi: (3,) float32 box.
         frame_centre: (3,) float32; ``frame_half``, ``frame_origin``, ``frame_version``: its frame.
-        caption, caption_feature ((d,) float16/32), confidence: its code-book entry.
+        caption, caption_feature ((d,) float16/32; None: the receiver holds it unchanged), confidence: its
+            code-book entry.
         cloud: (P, 3) float32 down-sampled points, or None (already sent).
         observed: where its keyframes have looked (2 bits a cell on the wire), or None (the sender keeps none).
+        params_code, feature_code: how the vector and the feature travel (``mapping.team.codec``), or None
+            (whole, as float16 or float32).
     """
 
     instance_id: int
@@ -65,6 +71,8 @@ class InstancePayload:
     confidence: float
     cloud: np.ndarray | None = None
     observed: ObservedSpace | None = None
+    params_code: CodedVector | None = None
+    feature_code: CodedVector | None = None
 
 
 @dataclass
@@ -77,6 +85,8 @@ class ParameterMessage:
     round: int
     instances: list[InstancePayload] = field(default_factory=list)
     degree: int = 1
+    lossless: str = "none"
+    """The codec's lossless stage over the whole message (``wire.seal``)."""
     kind = "params"
 
 
@@ -153,14 +163,25 @@ def to_bytes(message: Message) -> bytes:
                                      "origin": inst.frame_origin, "version": inst.frame_version,
                                      "caption": inst.caption, "confidence": float(inst.confidence),
                                      "cloud": inst.cloud is not None, "observed": inst.observed is not None})
-        arrays[f"{k}.params"] = inst.params
+        meta = scalars["instances"][-1]
+        if inst.params_code is not None:
+            meta["params_code"], coded = coded_arrays(f"{k}.params", inst.params_code)
+            arrays.update(coded)
+        else:
+            arrays[f"{k}.params"] = inst.params
         arrays[f"{k}.box"] = np.concatenate([inst.bound_lo, inst.bound_hi, inst.frame_centre]).astype(np.float32)
-        arrays[f"{k}.feature"] = inst.caption_feature
+        if inst.caption_feature is None:
+            meta["feature_code"] = "held"
+        elif inst.feature_code is not None:
+            meta["feature_code"], coded = coded_arrays(f"{k}.feature", inst.feature_code)
+            arrays.update(coded)
+        else:
+            arrays[f"{k}.feature"] = inst.caption_feature
         if inst.cloud is not None:
             arrays[f"{k}.cloud"] = np.asarray(inst.cloud, np.float32)
         if inst.observed is not None:
             arrays[f"{k}.observed"] = np.frombuffer(inst.observed.to_bytes(), np.uint8)
-    return pack("params", scalars, arrays)
+    return seal(pack("params", scalars, arrays), message.lossless)
 
 
 def from_bytes(data: bytes, rules: MessageRules = MessageRules()) -> Message:
@@ -169,10 +190,13 @@ def from_bytes(data: bytes, rules: MessageRules = MessageRules()) -> Message:
     the field, and nothing else escapes: nothing malformed is ever applied. Arrays decode to no more than the
     bytes that arrived (``wire``); a parameter message's grids, which inflate, are bounded by its cap first."""
     try:
-        kind, s, table, body = read_message(bytes(data))
+        data = bytes(data)
+        kind, s, table, body = read_message(data)
         base = (agent_field(s, "sender", rules), agent_field(s, "receiver", rules), count_field(s, "round"))
         if kind == "params":
-            return _parameter_message(base, s, table, body, rules)
+            message = _parameter_message(base, s, table, body, rules)
+            message.lossless = LOSSLESS[data[len(ENVELOPE)]] if data.startswith(ENVELOPE) else "none"
+            return message
         a = decode_arrays(table, body)
         if kind == "rays":
             poses = rigid_poses(checked_array(a, "poses", (None, 4, 4)))
@@ -216,15 +240,29 @@ def _parameter_message(base: tuple[int, int, int], scalars: dict, table: dict[st
 
 
 def _instance(k: int, m: InstanceMeta, arrays: dict[str, np.ndarray], rules: MessageRules) -> InstancePayload:
-    params = checked_array(arrays, f"{k}.params", (None,))
     want = None if rules.param_counts is None else rules.param_counts[m.bank]
-    if want is not None and len(params) != want:
-        raise MessageError(f"array {k}.params: {len(params)} values, a {m.bank} network has {want}")
+    params_code = None
+    if m.params_code is not None:
+        params_code = read_coded(f"{k}.params", m.params_code, arrays, want, rules.max_vector_values)
+        params = decode_vector(params_code)
+    else:
+        params = checked_array(arrays, f"{k}.params", (None,))
+        if want is not None and len(params) != want:
+            raise MessageError(f"array {k}.params: {len(params)} values, a {m.bank} network has {want}")
     box = checked_array(arrays, f"{k}.box", (9,))
     if np.any(box[:3] > box[3:6]):
         raise MessageError(f"array {k}.box: its low corner lies above its high corner")
-    feature = checked_array(arrays, f"{k}.feature", (rules.feature_dim,))
+    feature_code = None
+    if m.feature_code == "held":
+        feature = None
+    elif m.feature_code is not None:
+        feature_code = read_coded(f"{k}.feature", m.feature_code, arrays, rules.feature_dim, rules.max_vector_values)
+        if feature_code.base is not None:
+            raise MessageError(f"field instances[{k}].feature_code: a feature travels whole, not as a delta")
+        feature = decode_vector(feature_code)
+    else:
+        feature = checked_array(arrays, f"{k}.feature", (rules.feature_dim,))
     cloud = checked_array(arrays, f"{k}.cloud", (None, 3)) if m.cloud else None
     observed = checked_observed(arrays, k, box[:3], box[3:6], rules) if m.observed else None
     return InstancePayload(m.id, m.bank, params, box[:3], box[3:6], box[6:9], m.half, m.origin, m.version,
-                           m.caption, feature, m.confidence, cloud, observed)
+                           m.caption, feature, m.confidence, cloud, observed, params_code, feature_code)

@@ -13,6 +13,7 @@ from typing import Sequence
 import numpy as np
 
 from mapping.pointcloud import voxel_downsample
+from mapping.team.codec import CodedVector, encode_vector
 from mapping.team.messages import InstancePayload, ParameterMessage, PointCloudMessage, RayMessage, to_bytes
 
 
@@ -30,6 +31,8 @@ class Outbox:
         ex = self.config.exchange
         sent = dict(self.sent_vectors.get(receiver, {}))
         clouds = dict(self.sent_cloud_points.get(receiver, {}))
+        features = dict(self.sent_features.get(receiver, {}))
+        rounds = dict(self.sent_rounds.get(receiver, {}))
         chosen = None if only is None else {int(i) for i in only}
         ids = [iid for iid in self.shareable_ids()
                if chosen is None or iid in chosen or (new and iid not in self.born_round)]
@@ -48,38 +51,67 @@ class Outbox:
                     iid not in clouds or len(fused.points) >= ex.resend_cloud_growth * clouds[iid]):
                 cloud = voxel_downsample(fused.points, ex.cloud_voxel_m).astype(np.float32)
             entry = self.entry(iid)
+            points = None if cloud is None else len(fused.points)
+            box = (inst.bound_lo.astype(np.float32), inst.bound_hi.astype(np.float32),
+                   np.asarray(inst.frame.centre, np.float32))
+            if ex.codec.active:
+                params_code, held, feature_code, held_feature = self.coded_vectors(
+                    iid, inst.params, entry.caption_feature, sent.get(iid), rounds.get(iid), features.get(iid))
+                payloads.append((InstancePayload(
+                    iid, inst.bank, held, *box, inst.frame.half, inst.frame.origin, inst.frame.version, entry.caption,
+                    None if feature_code is None else held_feature, entry.confidence, cloud, inst.observed, params_code,
+                    feature_code), held, points, held_feature))
+                continue
             dtype = np.float16 if ex.float16 else np.float32
             payloads.append((InstancePayload(
-                iid, inst.bank, inst.params.astype(dtype), inst.bound_lo.astype(np.float32),
-                inst.bound_hi.astype(np.float32), np.asarray(inst.frame.centre, np.float32), inst.frame.half,
+                iid, inst.bank, inst.params.astype(dtype), *box, inst.frame.half,
                 inst.frame.origin, inst.frame.version, entry.caption, entry.caption_feature.astype(dtype),
-                entry.confidence, cloud, inst.observed), inst.params, None if cloud is None else len(fused.points)))
+                entry.confidence, cloud, inst.observed), inst.params, points, None))
         if max_bytes is not None and np.isfinite(max_bytes):
             payloads = self._fit(payloads, receiver, round_index, degree, max_bytes)
             if payloads is None:
                 return None
         if chosen is not None and not payloads:  # the choice kept nothing (changed-only, capacity): send nothing
             return None
-        rounds = dict(self.sent_rounds.get(receiver, {}))
-        for payload, params, points in payloads:
+        for payload, params, points, feature in payloads:
             sent[payload.instance_id] = params
             rounds[payload.instance_id] = round_index
             if points is not None:
                 clouds[payload.instance_id] = points
-        self._unacknowledged[receiver] = (sent, clouds, rounds)
-        return ParameterMessage(self.index, receiver, round_index, [p for p, _, _ in payloads], degree)
+            if feature is not None:
+                features[payload.instance_id] = feature
+        self._unacknowledged[receiver] = (sent, clouds, rounds, features)
+        return ParameterMessage(self.index, receiver, round_index, [item[0] for item in payloads], degree,
+                                ex.codec.lossless)
+
+    def coded_vectors(self, iid: int, params: np.ndarray, feature: np.ndarray, copy: np.ndarray | None,
+                      copy_round: int | None, feature_copy: np.ndarray | None
+                      ) -> tuple[CodedVector, np.ndarray, CodedVector | None, np.ndarray]:
+        """Instance ``iid``'s vector and feature as the codec sends them to a receiver holding ``copy`` (its
+        reconstruction, acknowledged at ``copy_round``) and ``feature_copy``: the codes, and what the receiver
+        will hold (the same arithmetic at both ends). With deltas the vector goes as its difference to the copy
+        (whole the first time); a feature the receiver holds unchanged is left out (None)."""
+        c = self.config.exchange.codec
+        base = copy if c.delta and copy is not None and copy_round is not None else None
+        params_code, held = encode_vector(params, c.bits, c.block, base, copy_round if base is not None else None,
+                                          c.keep if base is not None else 1.0)
+        feature_code, held_feature = encode_vector(feature, c.feature_bits, c.block)
+        if c.delta and c.unchanged_features and feature_copy is not None and np.array_equal(held_feature, feature_copy):
+            return params_code, held, None, feature_copy
+        return params_code, held, feature_code, held_feature
 
     def _fit(self, payloads: list, receiver: int, round_index: int, degree: int, max_bytes: float) -> list | None:
         """The payloads that fit in ``max_bytes``: taken in ``instance_priority`` order, each one that still fits
         (first fit: a big network does not block the small ones behind it), kept in message order."""
         def size_of(items: list) -> int:
-            kept = [p for p, _, _ in sorted(items, key=lambda item: item[0].instance_id)]
-            return len(to_bytes(ParameterMessage(self.index, receiver, round_index, kept, degree)))
+            kept = [item[0] for item in sorted(items, key=lambda item: item[0].instance_id)]
+            return len(to_bytes(ParameterMessage(self.index, receiver, round_index, kept, degree,
+                                                 self.config.exchange.codec.lossless)))
 
         empty = size_of([])
         if empty > max_bytes:
             return None
-        order = self.instance_priority(receiver, [p.instance_id for p, _, _ in payloads])
+        order = self.instance_priority(receiver, [item[0].instance_id for item in payloads])
         by_id = {item[0].instance_id: item for item in payloads}
         chosen, used = [], empty
         for iid in order:
@@ -116,7 +148,8 @@ class Outbox:
             return
         booked = self._unacknowledged.pop(receiver, None)
         if delivered and booked is not None:
-            self.sent_vectors[receiver], self.sent_cloud_points[receiver], self.sent_rounds[receiver] = booked
+            (self.sent_vectors[receiver], self.sent_cloud_points[receiver], self.sent_rounds[receiver],
+             self.sent_features[receiver]) = booked
 
     def point_cloud_message(self, receiver: int, round_index: int) -> PointCloudMessage:
         """Every point this agent has observed so far (its fused instances' clouds), down-sampled."""

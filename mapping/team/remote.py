@@ -110,6 +110,9 @@ class MemberProcess:
     def receive_parameters(self, data: bytes) -> AlignmentCounts:
         return self.member.receive_parameters(_unwire(data))
 
+    def arrival_problem(self, data: bytes) -> str | None:
+        return self.member.arrival_problem(_unwire(data))
+
     def degree_messages(self, round_index: int) -> list[bytes]:
         return [_wire(m) for m in self.member.degree_messages(round_index)]
 
@@ -232,6 +235,9 @@ class RemoteMember(StreamReader):
 
     def receive_parameters(self, message: Message) -> AlignmentCounts:
         return self._call("receive_parameters", _wire(message))
+
+    def arrival_problem(self, message: Message) -> str | None:
+        return self._call("arrival_problem", _wire(message))
 
     def degree_messages(self, round_index: int) -> list[Message]:
         return [_unwire(d) for d in self._call("degree_messages", round_index)]

@@ -153,6 +153,7 @@ class Team:
                         j, t, int(degree[i]), only, None if np.isinf(room[i, j]) else float(room[i, j]), new))
                 if plan.share_rays[i, j]:
                     messages.append(self.members[i].ray_message(j, t, zlib.crc32(f"rays-{self.seed}-{t}-{i}-{j}".encode())))
+                accept = self.members[j].arrival_problem if self.config.exchange.codec.active else None
                 for message in messages:
                     if message is None:
                         continue
@@ -160,10 +161,10 @@ class Team:
                         data = to_bytes(message)
                         if len(data) > room[i, j]:
                             continue
-                        d = self.channel.transmit_bytes(message.sender, message.receiver, message.kind, data)
+                        d = self.channel.transmit_bytes(message.sender, message.receiver, message.kind, data, accept)
                         room[i, j] -= d.bytes
                     else:
-                        d = self.channel.transmit(message)
+                        d = self.channel.transmit(message, accept)
                     self.members[i].acknowledge(j, d.kind, d.status == DELIVERED, t)
                     deliveries.append(DeliveryRecord(i, j, d.kind, d.status, d.bytes))
                     if d.status == DELIVERED and d.kind != "points":  # clouds are counted, not learned from

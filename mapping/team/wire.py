@@ -1,6 +1,8 @@
 """The wire format of every message: ``b"OMMSG"``, a version byte, a uint32 header length, a UTF-8 JSON
 header (scalars, and for each array its name, dtype, shape and offset), then the arrays' raw little-endian
-bytes.
+bytes. A message may travel compressed whole (the codec's lossless stage, ``seal``): ``b"OMMSZ"``, the
+method's byte, the uint64 length it inflates to, then the compressed bytes; the length is checked against a
+limit before anything inflates, and inflation stops at it.
 
 Bytes that crossed a process or a machine may be anything, so ``read_message`` checks every table entry with
 Python integers (no int64 overflow) against the bytes actually there before numpy sees it (the arrays
@@ -13,6 +15,7 @@ from __future__ import annotations
 import json
 import math
 import struct
+import zlib
 from dataclasses import dataclass
 
 import numpy as np
@@ -29,6 +32,16 @@ MAX_NDIM = 4
 MAX_EXTENT = 1 << 40
 """The most elements the non-zero dimensions of one shape may multiply to: numpy refuses a (0, 2^62, 2^62)
 array although it is empty."""
+
+
+ENVELOPE = b"OMMSZ"
+LOSSLESS = ("none", "zlib", "zstd")
+"""The codec's lossless stages: none, zlib (the standard library's) or zstd (the ``zstandard`` package)."""
+MAX_INFLATION = 64
+"""A compressed message may announce at most this many times its own bytes (and at least ``MIN_INFLATED``):
+honest messages compress 1.1-4x (headers, quantised codes, grids already compressed); zeros compress 1000x,
+so without a limit 4 kB could announce gigabytes."""
+MIN_INFLATED = 1 << 20
 
 
 class MessageError(ValueError):
@@ -66,10 +79,74 @@ class ArrayEntry:
         return math.prod(self.shape) * np.dtype(self.dtype).itemsize
 
 
+def seal(data: bytes, method: str, level: int | None = None) -> bytes:
+    """``data`` (a packed message) compressed whole by ``method`` (``LOSSLESS``; ``none`` returns it as it is), at
+    each library's default level (zlib 6, zstd 3): on a round's coded messages zstd 3 wrote 0.7-2 % fewer bytes
+    than zlib 9 in 1/40 of its time (docs/codec.md)."""
+    if method == "none":
+        return data
+    if method == "zlib":
+        packed = zlib.compress(data, 6 if level is None else level)
+    elif method == "zstd":
+        packed = _zstd().ZstdCompressor(level=3 if level is None else level).compress(data)
+    else:
+        raise ValueError(f"unknown lossless stage {method!r}; choose one of {LOSSLESS}")
+    return ENVELOPE + bytes([LOSSLESS.index(method)]) + struct.pack("<Q", len(data)) + packed
+
+
+def unseal(data: bytes) -> bytes:
+    """The packed message a sealed one holds (``data`` itself when it is not sealed); MessageError for an
+    unknown method, a length over ``MAX_INFLATION`` times the sealed bytes, or bytes that do not inflate to
+    exactly the announced length (inflation stops at it: never more is allocated)."""
+    if not data.startswith(ENVELOPE):
+        return data
+    head = len(ENVELOPE) + 9
+    if len(data) < head:
+        raise MessageError("truncated message (compressed envelope)")
+    method = data[len(ENVELOPE)]
+    (size,) = struct.unpack("<Q", data[len(ENVELOPE) + 1:head])
+    limit = max(MIN_INFLATED, MAX_INFLATION * len(data))
+    if method == 0 or method >= len(LOSSLESS):
+        raise MessageError(f"compressed message of unknown method {method}")
+    if size > limit:
+        raise MessageError(f"compressed message announces {size} bytes, over {limit} ({MAX_INFLATION} times its "
+                           f"{len(data)} bytes)")
+    try:
+        if LOSSLESS[method] == "zlib":
+            inflater = zlib.decompressobj()
+            raw = inflater.decompress(data[head:], size + 1)
+            complete = inflater.eof and not inflater.unconsumed_tail
+        else:
+            with _zstd().ZstdDecompressor().stream_reader(data[head:]) as reader:
+                raw = reader.read(size + 1)  # at most one byte past the announced length
+            complete = True
+    except (zlib.error, ValueError, MemoryError) as exc:
+        raise MessageError(f"compressed message does not inflate ({type(exc).__name__})") from None
+    except Exception as exc:  # noqa: BLE001  (zstandard's own error class)
+        raise MessageError(f"compressed message does not inflate ({type(exc).__name__})") from None
+    if len(raw) != size or not complete:
+        raise MessageError(f"compressed message inflates to {len(raw)}{'+' if len(raw) > size else ''} bytes, "
+                           f"it announced {size}")
+    if raw.startswith(ENVELOPE):
+        raise MessageError("compressed message inside a compressed message")
+    return raw
+
+
+def _zstd():
+    try:
+        import zstandard  # noqa: PLC0415  (optional: the zstd stage only)
+    except ImportError:
+        raise ValueError("the zstd lossless stage needs the zstandard package (pip install zstandard); "
+                         "zlib needs nothing") from None
+    return zstandard
+
+
 def read_message(data: bytes) -> tuple[str, dict, dict[str, ArrayEntry], memoryview]:
-    """Kind, scalars, checked array table and body of ``data``, nothing decoded yet: so that what the arrays
-    would decode to can be checked first. The arrays together hold at most the body's bytes (no two may
-    share them: a table that points every entry at the same bytes would decode past the message)."""
+    """Kind, scalars, checked array table and body of ``data`` (inflated first when sealed), nothing decoded
+    yet: so that what the arrays would decode to can be checked first. The arrays together hold at most the
+    body's bytes (no two may share them: a table that points every entry at the same bytes would decode past
+    the message)."""
+    data = unseal(bytes(data))
     if len(data) < len(MAGIC) + 5 or not data.startswith(MAGIC):
         raise MessageError("not an OpenMulti message (bad magic)")
     if data[len(MAGIC)] != VERSION:

@@ -15,7 +15,7 @@ import yaml
 from mapping.config_fields import range_problem
 from mapping.pipeline.records import as_record, missing_paths, neutral_default_paths
 from mapping.safe_parse import ParseError, load_data
-from openmulti_env.experiment.overrides import ConfigError, apply_overrides, from_mapping, leaf_paths, node_paths
+from openmulti_env.experiment.overrides import OLD_SPELLINGS, ConfigError, apply_overrides, from_mapping, leaf_paths, node_paths
 from openmulti_env.experiment.tree import Experiment
 
 FORMAT = "openmulti.experiment"
@@ -132,7 +132,7 @@ def _from_version0(record: dict) -> Experiment:
     if "preset" not in record or not ({"scene", "data"} & set(record)):
         raise ConfigError("not an experiment record: it has neither a format nor the flat settings of an older run "
                           "(preset and scene or data)")
-    flat = {k: v for k, v in record.items() if k not in LEGACY_DROPPED and k != "preset"}
+    flat = {OLD_SPELLINGS.get(k, k): v for k, v in record.items() if k not in LEGACY_DROPPED and k != "preset"}
     if "data" in flat:
         for key in LEGACY_SOURCE_KEYS:
             flat.pop(key, None)
@@ -196,8 +196,30 @@ def _with_neutral_defaults(record: dict) -> dict | None:
         tree = from_mapping(Experiment, experiment_record)
     except ConfigError:
         return None
-    filled = {**checkpoint_identity(tree, record["source"]), "team": record["team"]}
+    team = _team_with_neutral_defaults(record["team"])
+    if team is None:
+        return None
+    filled = {**checkpoint_identity(tree, record["source"]), "team": team}
     lacking = missing_paths(experiment_record, filled["experiment"])
     if lacking is None or not lacking <= neutral_default_paths(tree):
+        return None
+    return filled
+
+
+def _team_with_neutral_defaults(team_record) -> dict | None:
+    """A checkpoint's resolved team written before some ``neutral_default`` team settings existed (such as
+    ``exchange.codec``), with them at their defaults; as written when it lacks nothing; None when it lacks
+    another setting or does not read as a team."""
+    from mapping.team import TeamConfig  # noqa: PLC0415
+
+    if not isinstance(team_record, dict):
+        return None
+    try:
+        team = from_mapping(TeamConfig, team_record)
+    except ConfigError:
+        return None
+    filled = as_record(asdict(team))
+    lacking = missing_paths(team_record, filled)
+    if lacking is None or not lacking <= neutral_default_paths(team):
         return None
     return filled
