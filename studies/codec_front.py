@@ -36,8 +36,13 @@ SETTINGS: dict[str, tuple[str, ...]] = {
     "4d10": ("bits=4", "feature_bits=8", "delta=true", "keep=0.1", "lossless=zstd"),
     "4d5": ("bits=4", "feature_bits=8", "delta=true", "keep=0.05", "lossless=zstd"),
     "4d2": ("bits=4", "feature_bits=8", "delta=true", "keep=0.02", "lossless=zstd"),
+    "8d10c16": ("bits=8", "feature_bits=8", "delta=true", "keep=0.1", "cloud_bits=16", "lossless=zstd"),
+    "4d5c16": ("bits=4", "feature_bits=8", "delta=true", "keep=0.05", "cloud_bits=16", "lossless=zstd"),
+    "4d5c8": ("bits=4", "feature_bits=8", "delta=true", "keep=0.05", "cloud_bits=8", "lossless=zstd"),
 }
-"""Named codec settings: ``team.exchange.codec`` fields (``float32``: the codec off, today's format)."""
+"""Named codec settings: ``team.exchange.codec`` fields (``float32``: the codec off, today's format). Rows made
+before 5b3c8b6's successor coded neither clouds nor left out held observed spaces (their ``made_at`` says which
+code made them)."""
 
 
 def codec_options(setting: str) -> list[str]:

@@ -12,8 +12,8 @@ import pytest
 
 from mapping.team import Channel, ChannelConfig, InstancePayload, MessageError, ParameterMessage, RoundPlan
 from mapping.team import from_bytes, to_bytes
-from mapping.team.codec import (coded_arrays, decode_vector, dequantise, encode_vector, pack_unsigned, quantise,
-                                unpack_unsigned, vector_bytes)
+from mapping.team.codec import (CodedCloud, coded_arrays, decode_vector, dequantise, encode_cloud, encode_vector,
+                                observed_digest, pack_unsigned, quantise, unpack_unsigned, vector_bytes)
 from mapping.team.config import CodecConfig, ExchangeConfig
 from mapping.team.message_checks import MessageRules
 from mapping.team.wire import ENVELOPE, MAX_INFLATION, seal, unseal
@@ -77,6 +77,18 @@ def test_a_mask_or_positions_whichever_is_smaller():
     many, _ = encode_vector(values, 8, 64, np.zeros(800, np.float32), 0, keep=0.5)
     assert coded_arrays("0.params", few)[0]["index"] == "index" and coded_arrays("0.params", many)[0]["index"] == "mask"
     assert vector_bytes(800, 8, 64, 400) == 400 + 4 * 7 + 100 and vector_bytes(800, 32, 64) == 3200
+
+
+def test_clouds_travel_as_integers_over_their_own_box():
+    rng = np.random.default_rng(4)
+    points = (rng.random((500, 3)) * [4.0, 0.5, 2.0] + [1.0, -3.0, 0.2]).astype(np.float32)
+    for bits, worst in ((16, 4.0 / 65535), (8, 4.0 / 255)):
+        codes, frame, held = encode_cloud(points, bits)
+        assert codes.dtype == (np.uint16 if bits == 16 else np.uint8)
+        assert np.abs(held - points).max() <= worst / 2 + 1e-6
+        payload = replace(_payload(3), cloud=held, cloud_code=CodedCloud(codes, frame, bits))
+        back = from_bytes(to_bytes(ParameterMessage(0, 1, 2, [payload]))).instances[0]
+        assert np.array_equal(back.cloud, held)  # the receiver decodes what the sender computed
 
 
 # ---- the wire -----------------------------------------------------------------------------------------------
@@ -170,6 +182,28 @@ def test_bad_scales_and_positions_are_refused():
         from_bytes(to_bytes(ParameterMessage(0, 1, 5, [_payload(3, code=replace(whole, codes=np.full_like(whole.codes, np.inf)))])))
 
 
+def test_bad_clouds_and_held_flags_are_refused():
+    codes, frame, held = encode_cloud(np.random.default_rng(0).random((40, 3)).astype(np.float32), 16)
+    good = replace(_payload(3), cloud=held, cloud_code=CodedCloud(codes, frame, 16))
+    for bad, error in [(replace(good, cloud_code=CodedCloud(codes, frame[::-1].copy(), 16)), "low below high"),
+                       (replace(good, cloud_code=CodedCloud(codes.astype(np.uint8), frame, 16)), "uint16"),
+                       (replace(good, cloud_code=CodedCloud(codes[:, :2].copy(), frame, 16)), "uint16")]:
+        with pytest.raises(MessageError, match=error):
+            from_bytes(to_bytes(ParameterMessage(0, 1, 5, [bad])))
+
+    def meta(key, value):
+        def change(h):
+            h["scalars"]["instances"][0][key] = value
+            return h
+        return change
+
+    data = to_bytes(ParameterMessage(0, 1, 5, [good]))
+    for change, error in [(meta("cloud_bits", 12), "cloud_bits: 12"), (meta("observed_code", "maybe"), "only 'held'"),
+                          (meta("cloud", False), "cloud_bits")]:
+        with pytest.raises(MessageError, match=error):
+            from_bytes(_rewrite(data, change))
+
+
 def test_a_sparse_delta_cannot_ask_for_an_unbounded_vector():
     coded, _ = encode_vector(np.ones(300, np.float32), 8, 64, np.zeros(300, np.float32), 4, keep=0.01)
     data = _rewrite(to_bytes(ParameterMessage(0, 1, 5, [_payload(3, code=coded)])), _code_meta("n", 2**40))
@@ -186,6 +220,8 @@ def test_codec_settings_are_checked_where_they_are_made():
         CodecConfig(keep=0.5)
     with pytest.raises(ValueError, match="lossless must be one of"):
         CodecConfig(lossless="lzma")
+    with pytest.raises(ValueError, match="cloud_bits must be one of"):
+        CodecConfig(cloud_bits=4)
     with pytest.raises(ValueError, match="give team.exchange.codec.bits=16"):
         ExchangeConfig(float16=True, codec=CodecConfig(bits=8))
 
@@ -209,11 +245,13 @@ def _copies_agree(team) -> int:
                 checked += 1
             for iid, feature in sender.sent_features.get(receiver, {}).items():
                 assert np.array_equal(held[iid].caption_feature, feature)
+            for iid, digest in sender.sent_observed.get(receiver, {}).items():
+                assert observed_digest(held[iid].observed) == digest or held[iid].observed is None
     return checked
 
 
 def test_a_coded_team_holds_the_senders_copies_exactly_over_lossy_links(tiny_world):
-    codec = CodecConfig(bits=8, feature_bits=8, delta=True, keep=0.25, lossless="zlib")
+    codec = CodecConfig(bits=8, feature_bits=8, delta=True, keep=0.25, cloud_bits=16, lossless="zstd")
     plain, coded, lossy = _team(tiny_world, CodecConfig()), _team(tiny_world, codec), _team(tiny_world, codec, 0.5)
     sent_plain = sent_coded = 0
     for _ in range(3):
@@ -224,6 +262,10 @@ def test_a_coded_team_holds_the_senders_copies_exactly_over_lossy_links(tiny_wor
         _copies_agree(lossy)
     assert sent_coded < 0.3 * sent_plain
     assert any(m.held for m in coded.members)
+    # later messages left out what the receivers held unchanged
+    message = coded.members[0].parameter_message(1, 3, 1)
+    assert all(inst.caption_feature is None for inst in message.instances if inst.instance_id in
+               coded.members[1].held[0])
 
 
 def test_a_delta_to_a_copy_the_receiver_does_not_hold_is_refused_and_changes_nothing(tiny_world):

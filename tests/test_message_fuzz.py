@@ -22,7 +22,7 @@ from mapping.model.observed import GRID_HEADER, SURFACE, ObservedSpace, Observed
 from mapping.model.observed_map import ObservedMaps
 from mapping.team import (Channel, InstancePayload, MessageError, MessageRules, ParameterMessage, RayMessage,
                           from_bytes, to_bytes)
-from mapping.team.codec import encode_vector
+from mapping.team.codec import CodedCloud, encode_cloud, encode_vector
 from mapping.team.message_size import size_and_cap
 from mapping.team.wire import seal
 from mapping.team.messages import DegreeMessage, PointCloudMessage, replay_pixels
@@ -49,8 +49,9 @@ def _payload(iid: int, bank: str = "object", cloud: bool = True) -> InstancePayl
 
 
 def _coded_payloads() -> list[InstancePayload]:
-    """Coded instances (``mapping.team.codec``): 8 bits whole, a 4-bit sparse delta named by positions, an
-    8-bit delta named by a mask with its feature left out (the receiver holds it)."""
+    """Coded instances (``mapping.team.codec``): 8 bits whole with a 16-bit cloud, a 4-bit sparse delta named by
+    positions, an 8-bit delta named by a mask with its feature and observed space left out (the receiver holds
+    them)."""
     rng = np.random.default_rng(5)
     whole, sparse, masked = _payload(5), _payload(6, cloud=False), _payload(7, "structure", cloud=False)
     n = COUNTS["object"]
@@ -59,6 +60,9 @@ def _coded_payloads() -> list[InstancePayload]:
     sparse.params_code, _ = encode_vector(sparse.params, 4, 32, rng.normal(size=n).astype(np.float32), 2, keep=0.01)
     masked.params_code, _ = encode_vector(masked.params, 8, 64, np.zeros(COUNTS["structure"], np.float32), 1, keep=0.3)
     masked.caption_feature = None
+    masked.observed, masked.observed_held = None, True
+    codes, frame, whole.cloud = encode_cloud(whole.cloud, 16)
+    whole.cloud_code = CodedCloud(codes, frame, 16)
     return [whole, sparse, masked]
 
 

@@ -25,6 +25,8 @@ import numpy as np
 from mapping.team.wire import MessageError, is_count
 
 BITS = (4, 8, 16, 32)
+CLOUD_BITS = (8, 16, 32)
+"""Bits a cloud coordinate may take: 8 and 16 are integers over the cloud's own box, 32 is float32."""
 """Bits a coded value may take: 4 and 8 are integers with a float32 scale per block; 16 and 32 are float16 and
 float32 (no scale)."""
 META_FIELDS = frozenset({"n", "bits", "block", "base", "kept", "index"})
@@ -171,6 +173,62 @@ def vector_bytes(length: int, bits: int, block: int, kept: int | None = None) ->
     if kept < length:
         size += min(4 * kept, -(-length // 8))
     return size
+
+
+# ---- clouds ------------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class CodedCloud:
+    """A cloud as it travels: (P, 3) codes over its box ``frame`` (low corner, high corner), ``bits`` each."""
+
+    codes: np.ndarray
+    frame: np.ndarray
+    bits: int
+
+
+def observed_digest(space) -> tuple:
+    """What identifies an observed space's state: its grid's origin and shape and how many cells are free and how
+    many surface. Cells only ever rise (``ObservedSpace.mark`` takes the maximum), so any change moves one of these."""
+    if space is None:
+        return ()
+    counts = np.bincount(space.states.reshape(-1), minlength=3)
+    return (*space.origin.tolist(), *space.states.shape, *counts.tolist())
+
+
+def encode_cloud(points: np.ndarray, bits: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(P, 3) points as codes over their own box: the codes (uint8 or uint16, (P, 3)), the box (6,) float32 (low
+    corner, high corner) and the points the receiver will decode. A 2 cm voxel cloud of a 4 m object at 16 bits
+    is off by at most 0.03 mm; at 8 bits by 8 mm."""
+    points = np.asarray(points, np.float32).reshape(-1, 3)
+    lo = points.min(axis=0) if len(points) else np.zeros(3, np.float32)
+    hi = points.max(axis=0) if len(points) else np.zeros(3, np.float32)
+    top = np.float32((1 << bits) - 1)
+    span = np.where(hi > lo, hi - lo, np.float32(1)).astype(np.float32)
+    codes = np.clip(np.rint((points - lo) / span * top), 0, top).astype(np.uint8 if bits == 8 else np.uint16)
+    frame = np.concatenate([lo, hi]).astype(np.float32)
+    return codes, frame, decode_cloud(codes, frame, bits)
+
+
+def decode_cloud(codes: np.ndarray, frame: np.ndarray, bits: int) -> np.ndarray:
+    """The float32 points ``encode_cloud`` coded (the same arithmetic at both ends)."""
+    lo, hi = frame[:3].astype(np.float32), frame[3:].astype(np.float32)
+    span = np.where(hi > lo, hi - lo, np.float32(1)).astype(np.float32)
+    return (lo + codes.astype(np.float32) / np.float32((1 << bits) - 1) * span).astype(np.float32)
+
+
+def read_cloud(name: str, bits, arrays: dict[str, np.ndarray], max_points: int) -> np.ndarray:
+    """A coded cloud (``NAME.q`` codes, ``NAME.scale`` its box) as float32 points, every field checked."""
+    if bits not in (8, 16) or isinstance(bits, bool):
+        raise MessageError(f"field {name}_bits: {str(bits)[:40]} (8 or 16; 32 travels as float32)")
+    codes = arrays.get(f"{name}.q")
+    want = "uint8" if bits == 8 else "uint16"
+    if codes is None or codes.dtype.name != want or codes.ndim != 2 or codes.shape[1] != 3 or len(codes) > max_points:
+        raise MessageError(f"array {name}.q: expected (n <= {max_points}, 3) {want}")
+    frame = _array(arrays, f"{name}.scale", "float32", 6)
+    if not np.all(np.isfinite(frame)) or np.any(frame[:3] > frame[3:]):
+        raise MessageError(f"array {name}.scale: a box of finite corners, low below high")
+    if f"{name}.index" in arrays or f"{name}.mask" in arrays:
+        raise MessageError(f"array {name}: a cloud names no positions")
+    return decode_cloud(codes, frame, bits)
 
 
 # ---- on the wire ------------------------------------------------------------------------------------------

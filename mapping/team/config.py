@@ -113,18 +113,23 @@ class CodecConfig:
     keep: float = field(default=1.0, metadata=bounded(0, 1, low_open=True))
     """Share of a delta's entries sent, the largest first; the others stay in the next delta (error feedback:
     delayed, never lost). 1 sends them all."""
-    unchanged_features: bool = True
-    """With ``delta``, leave out a caption feature the receiver holds unchanged (it keeps its copy)."""
+    cloud_bits: int = field(default=32, metadata=bounded(8, 32))
+    """Bits of each cloud coordinate: 32 (float32), 16 or 8 (integers over the cloud's own box)."""
+    leave_out_held: bool = True
+    """With ``delta``, leave out a caption feature and an observed space the receiver holds unchanged (it keeps
+    its copy)."""
     lossless: str = "none"
     """A lossless stage over the whole message: none, zlib or zstd."""
 
     def __post_init__(self) -> None:
-        from mapping.team.codec import BITS  # noqa: PLC0415  (the codec's own table)
+        from mapping.team.codec import BITS, CLOUD_BITS  # noqa: PLC0415  (the codec's own tables)
         from mapping.team.wire import LOSSLESS  # noqa: PLC0415
 
         for name in ("bits", "feature_bits"):
             if getattr(self, name) not in BITS:
                 raise ValueError(f"team.exchange.codec.{name} must be one of {BITS}, got {getattr(self, name)!r}")
+        if self.cloud_bits not in CLOUD_BITS:
+            raise ValueError(f"team.exchange.codec.cloud_bits must be one of {CLOUD_BITS}, got {self.cloud_bits!r}")
         if self.lossless not in LOSSLESS:
             raise ValueError(f"team.exchange.codec.lossless must be one of {LOSSLESS}, got {self.lossless!r}")
         if self.keep < 1.0 and not self.delta:

@@ -142,11 +142,12 @@ class TeamMember(StreamReader, Outbox, Inbox, Agreement):
         self.sent_cloud_points: dict[int, dict[int, int]] = {}
         self.sent_rounds: dict[int, dict[int, int]] = {}  # peer -> own id -> round its vector last reached the peer
         self.sent_features: dict[int, dict[int, np.ndarray]] = {}  # peer -> own id -> its caption feature there (codec)
+        self.sent_observed: dict[int, dict[int, tuple]] = {}  # peer -> own id -> digest of its observed space there
         self.duals: dict[str, torch.Tensor] = {}
         self.mixing_weights: dict[PairKey, float] = {}  # DSGD: the weight W_kj of each edge mixed last round
         self.peer_positions: dict[int, tuple[int, np.ndarray]] = {}  # peer -> (round, (3,) position) from its rays
         self._shadow: dict[int, tuple[int, list, list]] = {}
-        self._unacknowledged: dict[int, tuple[dict, dict, dict, dict]] = {}  # receiver -> bookkeeping of the message in flight
+        self._unacknowledged: dict[int, tuple[dict, dict, dict, dict, dict]] = {}  # receiver -> bookkeeping of the message in flight
         self.delivered_round: dict[str, dict[int, int]] = {"params": {}, "rays": {}, "points": {}}  # kind -> peer -> round
         self._last_position: np.ndarray | None = None
         self.born_round: dict[int, int] = {}  # own id -> round it first appeared in a snapshot of this map

@@ -31,7 +31,7 @@ import numpy as np
 from mapping.model.observed import ObservedSpace
 from mapping.team.message_checks import (InstanceMeta, MessageRules, agent_field, checked_array, checked_ids,
                                          checked_intrinsics, checked_observed, count_field, instance_meta, rigid_poses)
-from mapping.team.codec import CodedVector, coded_arrays, decode_vector, read_coded
+from mapping.team.codec import CodedCloud, CodedVector, coded_arrays, decode_vector, read_cloud, read_coded
 from mapping.team.message_size import check_decoded_size
 from mapping.team.wire import ENVELOPE, LOSSLESS, ArrayEntry, MessageError, decode_arrays, pack, read_message, seal
 
@@ -55,6 +55,8 @@ class InstancePayload:
         observed: where its keyframes have looked (2 bits a cell on the wire), or None (the sender keeps none).
         params_code, feature_code: how the vector and the feature travel (``mapping.team.codec``), or None
             (whole, as float16 or float32).
+        cloud_code: how the cloud travels (integers over its box), or None (float32).
+        observed_held: the observed space was left out: the receiver holds it unchanged.
     """
 
     instance_id: int
@@ -73,6 +75,8 @@ class InstancePayload:
     observed: ObservedSpace | None = None
     params_code: CodedVector | None = None
     feature_code: CodedVector | None = None
+    cloud_code: CodedCloud | None = None
+    observed_held: bool = False
 
 
 @dataclass
@@ -177,8 +181,13 @@ def to_bytes(message: Message) -> bytes:
             arrays.update(coded)
         else:
             arrays[f"{k}.feature"] = inst.caption_feature
-        if inst.cloud is not None:
+        if inst.cloud_code is not None:
+            meta["cloud_bits"] = inst.cloud_code.bits
+            arrays[f"{k}.cloud.q"], arrays[f"{k}.cloud.scale"] = inst.cloud_code.codes, inst.cloud_code.frame
+        elif inst.cloud is not None:
             arrays[f"{k}.cloud"] = np.asarray(inst.cloud, np.float32)
+        if inst.observed_held:
+            meta["observed_code"] = "held"
         if inst.observed is not None:
             arrays[f"{k}.observed"] = np.frombuffer(inst.observed.to_bytes(), np.uint8)
     return seal(pack("params", scalars, arrays), message.lossless)
@@ -262,7 +271,13 @@ def _instance(k: int, m: InstanceMeta, arrays: dict[str, np.ndarray], rules: Mes
         feature = decode_vector(feature_code)
     else:
         feature = checked_array(arrays, f"{k}.feature", (rules.feature_dim,))
-    cloud = checked_array(arrays, f"{k}.cloud", (None, 3)) if m.cloud else None
+    cloud, cloud_code = None, None
+    if m.cloud_bits is not None:
+        cloud = read_cloud(f"{k}.cloud", m.cloud_bits, arrays, rules.max_cloud_points)
+        cloud_code = CodedCloud(arrays[f"{k}.cloud.q"], arrays[f"{k}.cloud.scale"], m.cloud_bits)
+    elif m.cloud:
+        cloud = checked_array(arrays, f"{k}.cloud", (None, 3))
     observed = checked_observed(arrays, k, box[:3], box[3:6], rules) if m.observed else None
     return InstancePayload(m.id, m.bank, params, box[:3], box[3:6], box[6:9], m.half, m.origin, m.version,
-                           m.caption, feature, m.confidence, cloud, observed, params_code, feature_code)
+                           m.caption, feature, m.confidence, cloud, observed, params_code, feature_code, cloud_code,
+                           m.observed_held)

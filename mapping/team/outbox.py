@@ -13,7 +13,7 @@ from typing import Sequence
 import numpy as np
 
 from mapping.pointcloud import voxel_downsample
-from mapping.team.codec import CodedVector, encode_vector
+from mapping.team.codec import CodedCloud, CodedVector, encode_cloud, encode_vector, observed_digest
 from mapping.team.messages import InstancePayload, ParameterMessage, PointCloudMessage, RayMessage, to_bytes
 
 
@@ -32,6 +32,7 @@ class Outbox:
         sent = dict(self.sent_vectors.get(receiver, {}))
         clouds = dict(self.sent_cloud_points.get(receiver, {}))
         features = dict(self.sent_features.get(receiver, {}))
+        observed = dict(self.sent_observed.get(receiver, {}))
         rounds = dict(self.sent_rounds.get(receiver, {}))
         chosen = None if only is None else {int(i) for i in only}
         ids = [iid for iid in self.shareable_ids()
@@ -57,10 +58,17 @@ class Outbox:
             if ex.codec.active:
                 params_code, held, feature_code, held_feature = self.coded_vectors(
                     iid, inst.params, entry.caption_feature, sent.get(iid), rounds.get(iid), features.get(iid))
+                cloud_code = None
+                if cloud is not None and ex.codec.cloud_bits < 32:
+                    cloud_code = CodedCloud(*encode_cloud(cloud, ex.codec.cloud_bits)[:2], ex.codec.cloud_bits)
+                digest = observed_digest(inst.observed)
+                held_observed = (ex.codec.delta and ex.codec.leave_out_held and inst.observed is not None
+                                 and observed.get(iid) == digest)
                 payloads.append((InstancePayload(
                     iid, inst.bank, held, *box, inst.frame.half, inst.frame.origin, inst.frame.version, entry.caption,
-                    None if feature_code is None else held_feature, entry.confidence, cloud, inst.observed, params_code,
-                    feature_code), held, points, held_feature))
+                    None if feature_code is None else held_feature, entry.confidence, cloud,
+                    None if held_observed else inst.observed, params_code, feature_code, cloud_code, held_observed),
+                    held, points, (held_feature, digest)))
                 continue
             dtype = np.float16 if ex.float16 else np.float32
             payloads.append((InstancePayload(
@@ -73,14 +81,14 @@ class Outbox:
                 return None
         if chosen is not None and not payloads:  # the choice kept nothing (changed-only, capacity): send nothing
             return None
-        for payload, params, points, feature in payloads:
+        for payload, params, points, coded in payloads:
             sent[payload.instance_id] = params
             rounds[payload.instance_id] = round_index
             if points is not None:
                 clouds[payload.instance_id] = points
-            if feature is not None:
-                features[payload.instance_id] = feature
-        self._unacknowledged[receiver] = (sent, clouds, rounds, features)
+            if coded is not None:  # what the receiver holds of the feature and the observed space
+                features[payload.instance_id], observed[payload.instance_id] = coded
+        self._unacknowledged[receiver] = (sent, clouds, rounds, features, observed)
         return ParameterMessage(self.index, receiver, round_index, [item[0] for item in payloads], degree,
                                 ex.codec.lossless)
 
@@ -96,7 +104,7 @@ class Outbox:
         params_code, held = encode_vector(params, c.bits, c.block, base, copy_round if base is not None else None,
                                           c.keep if base is not None else 1.0)
         feature_code, held_feature = encode_vector(feature, c.feature_bits, c.block)
-        if c.delta and c.unchanged_features and feature_copy is not None and np.array_equal(held_feature, feature_copy):
+        if c.delta and c.leave_out_held and feature_copy is not None and np.array_equal(held_feature, feature_copy):
             return params_code, held, None, feature_copy
         return params_code, held, feature_code, held_feature
 
@@ -149,7 +157,7 @@ class Outbox:
         booked = self._unacknowledged.pop(receiver, None)
         if delivered and booked is not None:
             (self.sent_vectors[receiver], self.sent_cloud_points[receiver], self.sent_rounds[receiver],
-             self.sent_features[receiver]) = booked
+             self.sent_features[receiver], self.sent_observed[receiver]) = booked
 
     def point_cloud_message(self, receiver: int, round_index: int) -> PointCloudMessage:
         """Every point this agent has observed so far (its fused instances' clouds), down-sampled."""

@@ -37,6 +37,7 @@ def member_state(m: TeamMember) -> dict:
         "sent_cloud_points": {int(p): {int(i): int(v) for i, v in t.items()} for p, t in m.sent_cloud_points.items()},
         "sent_rounds": {int(p): {int(i): int(r) for i, r in t.items()} for p, t in m.sent_rounds.items()},
         "sent_features": {int(p): {int(i): torch.as_tensor(v) for i, v in t.items()} for p, t in m.sent_features.items()},
+        "sent_observed": {int(p): {int(i): list(v) for i, v in t.items()} for p, t in m.sent_observed.items()},
         "born_round": {int(i): int(r) for i, r in m.born_round.items()}, "round_seen": int(m.round_seen),
         "duals": {k: v.cpu() for k, v in m.duals.items()},
         "peer_positions": {int(k): [int(r), torch.as_tensor(x)] for k, (r, x) in m.peer_positions.items()},
@@ -63,6 +64,8 @@ def restore_member(m: TeamMember, s: dict) -> None:
     m.sent_rounds = {int(p): {int(i): int(r) for i, r in t.items()} for p, t in s.get("sent_rounds", {}).items()}
     m.sent_features = {int(p): {int(i): np.asarray(v.numpy()) for i, v in t.items()}
                        for p, t in s.get("sent_features", {}).items()}
+    m.sent_observed = {int(p): {int(i): tuple(int(x) for x in v) for i, v in t.items()}
+                       for p, t in s.get("sent_observed", {}).items()}
     m.born_round = {int(i): int(r) for i, r in s.get("born_round", {}).items()}
     m.round_seen = int(s.get("round_seen", 0))
     m.duals = {k: v.to(m.mapper.device) for k, v in s["duals"].items()}

@@ -22,7 +22,7 @@ import numpy as np
 
 MAGIC = b"OMMSG"
 VERSION = 1
-DTYPES = frozenset({"float16", "float32", "float64", "int32", "int64", "uint8"})
+DTYPES = frozenset({"float16", "float32", "float64", "int32", "int64", "uint8", "uint16"})
 MAX_HEADER_BYTES = 1 << 21
 """2 MB of JSON: a real header takes about 330 bytes per instance (6,000 instances fit), and JSON of nested
 empty lists parses to about 22 times its bytes in Python objects, so this bounds the header's objects to
