@@ -60,7 +60,7 @@ def _coded_payloads() -> list[InstancePayload]:
     sparse.params_code, _ = encode_vector(sparse.params, 4, 32, rng.normal(size=n).astype(np.float32), 2, keep=0.01)
     masked.params_code, _ = encode_vector(masked.params, 8, 64, np.zeros(COUNTS["structure"], np.float32), 1, keep=0.3)
     masked.caption_feature = None
-    masked.observed, masked.observed_held = None, True
+    masked.observed, masked.observed_code = None, "held"
     codes, frame, whole.cloud = encode_cloud(whole.cloud, 16)
     whole.cloud_code = CodedCloud(codes, frame, 16)
     return [whole, sparse, masked]

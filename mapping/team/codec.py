@@ -22,6 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from mapping.model.observed import UNKNOWN, ObservedSpace
 from mapping.team.wire import MessageError, is_count
 
 BITS = (4, 8, 16, 32)
@@ -185,13 +186,23 @@ class CodedCloud:
     bits: int
 
 
-def observed_digest(space) -> tuple:
-    """What identifies an observed space's state: its grid's origin and shape and how many cells are free and how
-    many surface. Cells only ever rise (``ObservedSpace.mark`` takes the maximum), so any change moves one of these."""
-    if space is None:
-        return ()
-    counts = np.bincount(space.states.reshape(-1), minlength=3)
-    return (*space.origin.tolist(), *space.states.shape, *counts.tolist())
+def observed_change(space: ObservedSpace, copy: ObservedSpace | None) -> tuple[ObservedSpace | None, str]:
+    """What of observed space ``space`` travels to a receiver holding ``copy``: ``(None, "held")`` when nothing
+    changed, ``(change, "delta")`` with the cells that changed (the others unknown: the receiver's cell-wise
+    maximum with its copy gives ``space``, as cells only ever rise), or ``(space, "whole")`` without a copy on the
+    same lattice inside it. A change is mostly unknown cells: it compresses to a fraction of the grid."""
+    if copy is None or copy.cell_m != space.cell_m or not copy.states.size or not space.states.size:
+        return space, "whole"
+    at = (copy.origin - space.origin).tolist()
+    shape = copy.states.shape
+    if min(at) < 0 or any(a + n > m for a, n, m in zip(at, shape, space.states.shape)):
+        return space, "whole"
+    change = space.copy()
+    view = change.states[at[0]:at[0] + shape[0], at[1]:at[1] + shape[1], at[2]:at[2] + shape[2]]
+    view[view == copy.states] = UNKNOWN
+    if shape == space.states.shape and not change.states.any():
+        return None, "held"
+    return change, "delta"
 
 
 def encode_cloud(points: np.ndarray, bits: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -91,9 +91,11 @@ class Inbox:
             if base is not None and (inst.instance_id not in held or held_at.get(inst.instance_id) != base):
                 return (f"instance {inst.instance_id}: a delta to its copy of round {base}, this agent holds "
                         f"{'none' if inst.instance_id not in held else 'round ' + str(held_at.get(inst.instance_id))}")
-            if (inst.caption_feature is None or inst.observed_held) and inst.instance_id not in held:
+            if (inst.caption_feature is None or inst.observed_code is not None) and inst.instance_id not in held:
                 return (f"instance {inst.instance_id}: its {'feature' if inst.caption_feature is None else 'observed space'}"
                         " was left out, this agent never received it")
+            if inst.observed_code == "delta" and held[inst.instance_id].observed is None:
+                return f"instance {inst.instance_id}: a change to an observed space this agent does not hold"
         return None
 
     def _receive_global(self, message: ParameterMessage) -> AlignmentCounts:
@@ -158,16 +160,21 @@ class Inbox:
 def resolved_payload(payload: InstancePayload, copy: InstancePayload | None) -> InstancePayload:
     """``payload`` as the receiver holds it: a delta added to its ``copy``'s vector (float32, the sender's
     arithmetic), a left-out feature taken from the copy, the codes dropped (``arrival_problem`` checked first)."""
-    if payload.params_code is None and payload.caption_feature is not None and not payload.observed_held \
+    if payload.params_code is None and payload.caption_feature is not None and payload.observed_code is None \
             and payload.cloud_code is None:
         return payload
     params = payload.params
     if payload.params_code is not None and payload.params_code.base is not None:
         params = (np.asarray(copy.params, np.float32) + params).astype(np.float32)
     feature = copy.caption_feature if payload.caption_feature is None else payload.caption_feature
-    observed = copy.observed if payload.observed_held else payload.observed
+    observed = payload.observed
+    if payload.observed_code == "held":
+        observed = copy.observed
+    elif payload.observed_code == "delta":  # cells only rise: the copy's maximum with the change is the space
+        observed = copy.observed.copy()
+        observed.merge(payload.observed)
     return replace(payload, params=params, caption_feature=feature, observed=observed, params_code=None,
-                   feature_code=None, cloud_code=None, observed_held=False)
+                   feature_code=None, cloud_code=None, observed_code=None)
 
 
 def payload_frame(payload: InstancePayload) -> InstanceFrame:

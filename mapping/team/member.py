@@ -22,6 +22,7 @@ import numpy as np
 import torch
 
 from mapping.model.agent import MappingAgent
+from mapping.model.observed import ObservedSpace
 from mapping.data.frame import Frame
 from mapping.fusion.online import OnlineFusion
 from mapping.perception.codebook import CodeBook, CodeBookEntry
@@ -142,7 +143,7 @@ class TeamMember(StreamReader, Outbox, Inbox, Agreement):
         self.sent_cloud_points: dict[int, dict[int, int]] = {}
         self.sent_rounds: dict[int, dict[int, int]] = {}  # peer -> own id -> round its vector last reached the peer
         self.sent_features: dict[int, dict[int, np.ndarray]] = {}  # peer -> own id -> its caption feature there (codec)
-        self.sent_observed: dict[int, dict[int, tuple]] = {}  # peer -> own id -> digest of its observed space there
+        self.sent_observed: dict[int, dict[int, ObservedSpace]] = {}  # peer -> own id -> its observed space there (codec)
         self.duals: dict[str, torch.Tensor] = {}
         self.mixing_weights: dict[PairKey, float] = {}  # DSGD: the weight W_kj of each edge mixed last round
         self.peer_positions: dict[int, tuple[int, np.ndarray]] = {}  # peer -> (round, (3,) position) from its rays

@@ -23,7 +23,7 @@ META_FIELDS = frozenset({"id", "bank", "half", "origin", "version", "caption", "
 CODE_FIELDS = frozenset({"params_code", "feature_code", "cloud_bits", "observed_code"})
 """Scalars a coded instance adds (``mapping.team.codec``): how its vector, feature and cloud travel; a feature or
 observed space left out because the receiver holds it unchanged is ``"feature_code": "held"``,
-``"observed_code": "held"``."""
+``"observed_code": "held"``; an observed space of only the cells that changed is ``"observed_code": "delta"``."""
 GRID_SLACK_CELLS = 1
 """How many cells an observed grid may start before, or end after, its instance's box on each axis: the box
 travels as float32 corners, the grid was made from the float64 box."""
@@ -82,7 +82,7 @@ class InstanceMeta:
     params_code: dict | None = None
     feature_code: dict | str | None = None
     cloud_bits: int | None = None
-    observed_held: bool = False
+    observed_code: str | None = None
 
 
 def count_field(scalars: dict, name: str, upper: int | None = None) -> int:
@@ -175,8 +175,8 @@ def instance_meta(k: int, meta, rules: MessageRules) -> InstanceMeta:
     if feature_code is not None and not (isinstance(feature_code, dict) or feature_code == "held"):
         raise MessageError(f"field {where}feature_code: expected the code's fields or 'held'")
     observed_code, cloud_bits = meta.get("observed_code"), meta.get("cloud_bits")
-    if observed_code is not None and (observed_code != "held" or meta["observed"] is not False):
-        raise MessageError(f"field {where}observed_code: only 'held', with observed false")
+    if observed_code is not None and (observed_code, meta["observed"]) not in (("held", False), ("delta", True)):
+        raise MessageError(f"field {where}observed_code: 'held' (with observed false) or 'delta' (with observed true)")
     if cloud_bits is not None and (cloud_bits not in (8, 16) or isinstance(cloud_bits, bool) or meta["cloud"] is not True):
         raise MessageError(f"field {where}cloud_bits: {str(cloud_bits)[:40]} (8 or 16, with a cloud)")
     origin_limit = None if rules.num_agents is None else rules.num_agents - 1
@@ -184,7 +184,7 @@ def instance_meta(k: int, meta, rules: MessageRules) -> InstanceMeta:
                         finite_number(meta["half"], where + "half", 1e-6, 1e4),
                         _count(meta, "origin", where, origin_limit), _count(meta, "version", where),
                         caption, finite_number(meta["confidence"], where + "confidence", 0.0, 1.0), meta["cloud"],
-                        meta["observed"], params_code, feature_code, cloud_bits, observed_code == "held")
+                        meta["observed"], params_code, feature_code, cloud_bits, observed_code)
 
 
 def checked_observed(arrays: dict[str, np.ndarray], k: int, lo: np.ndarray, hi: np.ndarray,

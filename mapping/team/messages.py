@@ -56,7 +56,8 @@ class InstancePayload:
         params_code, feature_code: how the vector and the feature travel (``mapping.team.codec``), or None
             (whole, as float16 or float32).
         cloud_code: how the cloud travels (integers over its box), or None (float32).
-        observed_held: the observed space was left out: the receiver holds it unchanged.
+        observed_code: None (``observed`` is the whole space), ``held`` (left out: the receiver holds it unchanged)
+            or ``delta`` (``observed`` holds only the cells that changed since the receiver's copy).
     """
 
     instance_id: int
@@ -76,7 +77,7 @@ class InstancePayload:
     params_code: CodedVector | None = None
     feature_code: CodedVector | None = None
     cloud_code: CodedCloud | None = None
-    observed_held: bool = False
+    observed_code: str | None = None
 
 
 @dataclass
@@ -186,8 +187,8 @@ def to_bytes(message: Message) -> bytes:
             arrays[f"{k}.cloud.q"], arrays[f"{k}.cloud.scale"] = inst.cloud_code.codes, inst.cloud_code.frame
         elif inst.cloud is not None:
             arrays[f"{k}.cloud"] = np.asarray(inst.cloud, np.float32)
-        if inst.observed_held:
-            meta["observed_code"] = "held"
+        if inst.observed_code is not None:
+            meta["observed_code"] = inst.observed_code
         if inst.observed is not None:
             arrays[f"{k}.observed"] = np.frombuffer(inst.observed.to_bytes(), np.uint8)
     return seal(pack("params", scalars, arrays), message.lossless)
@@ -280,4 +281,4 @@ def _instance(k: int, m: InstanceMeta, arrays: dict[str, np.ndarray], rules: Mes
     observed = checked_observed(arrays, k, box[:3], box[3:6], rules) if m.observed else None
     return InstancePayload(m.id, m.bank, params, box[:3], box[3:6], box[6:9], m.half, m.origin, m.version,
                            m.caption, feature, m.confidence, cloud, observed, params_code, feature_code, cloud_code,
-                           m.observed_held)
+                           m.observed_code)

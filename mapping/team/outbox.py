@@ -13,7 +13,7 @@ from typing import Sequence
 import numpy as np
 
 from mapping.pointcloud import voxel_downsample
-from mapping.team.codec import CodedCloud, CodedVector, encode_cloud, encode_vector, observed_digest
+from mapping.team.codec import CodedCloud, CodedVector, encode_cloud, encode_vector, observed_change
 from mapping.team.messages import InstancePayload, ParameterMessage, PointCloudMessage, RayMessage, to_bytes
 
 
@@ -61,14 +61,15 @@ class Outbox:
                 cloud_code = None
                 if cloud is not None and ex.codec.cloud_bits < 32:
                     cloud_code = CodedCloud(*encode_cloud(cloud, ex.codec.cloud_bits)[:2], ex.codec.cloud_bits)
-                digest = observed_digest(inst.observed)
-                held_observed = (ex.codec.delta and ex.codec.leave_out_held and inst.observed is not None
-                                 and observed.get(iid) == digest)
+                space, form = inst.observed, None
+                if inst.observed is not None and ex.codec.delta and ex.codec.leave_out_held:
+                    space, form = observed_change(inst.observed, observed.get(iid))
+                    form = None if form == "whole" else form
                 payloads.append((InstancePayload(
                     iid, inst.bank, held, *box, inst.frame.half, inst.frame.origin, inst.frame.version, entry.caption,
-                    None if feature_code is None else held_feature, entry.confidence, cloud,
-                    None if held_observed else inst.observed, params_code, feature_code, cloud_code, held_observed),
-                    held, points, (held_feature, digest)))
+                    None if feature_code is None else held_feature, entry.confidence, cloud, space, params_code,
+                    feature_code, cloud_code, form),
+                    held, points, (held_feature, None if inst.observed is None else inst.observed.copy())))
                 continue
             dtype = np.float16 if ex.float16 else np.float32
             payloads.append((InstancePayload(
@@ -87,7 +88,9 @@ class Outbox:
             if points is not None:
                 clouds[payload.instance_id] = points
             if coded is not None:  # what the receiver holds of the feature and the observed space
-                features[payload.instance_id], observed[payload.instance_id] = coded
+                features[payload.instance_id] = coded[0]
+                if coded[1] is not None:
+                    observed[payload.instance_id] = coded[1]
         self._unacknowledged[receiver] = (sent, clouds, rounds, features, observed)
         return ParameterMessage(self.index, receiver, round_index, [item[0] for item in payloads], degree,
                                 ex.codec.lossless)

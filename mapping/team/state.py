@@ -5,8 +5,18 @@ from __future__ import annotations
 import numpy as np
 import torch
 
+from mapping.model.observed import ObservedSpace
 from mapping.team.member import TeamMember
 from mapping.team.messages import InstancePayload
+
+
+def _space_state(space: ObservedSpace | None):
+    """An observed space as a uint8 tensor of its wire bytes (None stays None)."""
+    return None if space is None else torch.frombuffer(bytearray(space.to_bytes()), dtype=torch.uint8)
+
+
+def _space(state) -> ObservedSpace | None:
+    return None if state is None else ObservedSpace.from_bytes(state.numpy().tobytes())
 
 
 def _payload_state(p: InstancePayload) -> dict:
@@ -14,13 +24,14 @@ def _payload_state(p: InstancePayload) -> dict:
             "hi": torch.as_tensor(p.bound_hi), "centre": torch.as_tensor(p.frame_centre), "half": float(p.frame_half),
             "origin": p.frame_origin, "version": p.frame_version, "caption": p.caption,
             "feature": torch.as_tensor(p.caption_feature), "confidence": float(p.confidence),
-            "cloud": None if p.cloud is None else torch.as_tensor(p.cloud)}
+            "cloud": None if p.cloud is None else torch.as_tensor(p.cloud), "observed": _space_state(p.observed)}
 
 
 def _payload(s: dict) -> InstancePayload:
     return InstancePayload(s["id"], s["bank"], s["params"].numpy(), s["lo"].numpy(), s["hi"].numpy(),
                            s["centre"].numpy(), s["half"], s["origin"], s["version"], s["caption"],
-                           s["feature"].numpy(), s["confidence"], None if s["cloud"] is None else s["cloud"].numpy())
+                           s["feature"].numpy(), s["confidence"], None if s["cloud"] is None else s["cloud"].numpy(),
+                           _space(s.get("observed")))
 
 
 def member_state(m: TeamMember) -> dict:
@@ -37,7 +48,7 @@ def member_state(m: TeamMember) -> dict:
         "sent_cloud_points": {int(p): {int(i): int(v) for i, v in t.items()} for p, t in m.sent_cloud_points.items()},
         "sent_rounds": {int(p): {int(i): int(r) for i, r in t.items()} for p, t in m.sent_rounds.items()},
         "sent_features": {int(p): {int(i): torch.as_tensor(v) for i, v in t.items()} for p, t in m.sent_features.items()},
-        "sent_observed": {int(p): {int(i): list(v) for i, v in t.items()} for p, t in m.sent_observed.items()},
+        "sent_observed": {int(p): {int(i): _space_state(v) for i, v in t.items()} for p, t in m.sent_observed.items()},
         "born_round": {int(i): int(r) for i, r in m.born_round.items()}, "round_seen": int(m.round_seen),
         "duals": {k: v.cpu() for k, v in m.duals.items()},
         "peer_positions": {int(k): [int(r), torch.as_tensor(x)] for k, (r, x) in m.peer_positions.items()},
@@ -64,8 +75,7 @@ def restore_member(m: TeamMember, s: dict) -> None:
     m.sent_rounds = {int(p): {int(i): int(r) for i, r in t.items()} for p, t in s.get("sent_rounds", {}).items()}
     m.sent_features = {int(p): {int(i): np.asarray(v.numpy()) for i, v in t.items()}
                        for p, t in s.get("sent_features", {}).items()}
-    m.sent_observed = {int(p): {int(i): tuple(int(x) for x in v) for i, v in t.items()}
-                       for p, t in s.get("sent_observed", {}).items()}
+    m.sent_observed = {int(p): {int(i): _space(v) for i, v in t.items()} for p, t in s.get("sent_observed", {}).items()}
     m.born_round = {int(i): int(r) for i, r in s.get("born_round", {}).items()}
     m.round_seen = int(s.get("round_seen", 0))
     m.duals = {k: v.to(m.mapper.device) for k, v in s["duals"].items()}
