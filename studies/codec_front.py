@@ -5,7 +5,7 @@ the settings are picked on validation cells and reported on cells never used for
     python -m studies.codec_front --cells room0:0 --policies always --settings float32 8d10 4d5 \\
         --rows docs/codec/validation.jsonl --out runs/study_codec
     python -m studies.codec_front --cells room1:3 office1:4 office2:5 --policies always instance_novelty \\
-        --settings float32 8d10 --rows docs/codec/test.jsonl --out runs/study_codec
+        --settings float32 --pick-from docs/codec/validation.jsonl --within 0.5 1.0 --rows docs/codec/test.jsonl
     python -m studies.codec_front --rows docs/codec/test.jsonl --plot docs/codec/test.png   # the picture only
 
 Each finished run appends its row (completion, accuracy, MB, wall time, ``made_at``) to ``--rows`` at once; a
@@ -99,6 +99,26 @@ def play(cells: list[str], policies: list[str], settings: list[str], scenario: s
                                        "setting": setting, "codec": list(SETTINGS[setting]), **figures})
 
 
+def pick_setting(rows: list[dict], within: float) -> str:
+    """The setting that sends the fewest bytes while staying within ``within`` points of float32 `always` on every
+    validation cell it was played on (mean MB share over cells); float32 when none does. Only `always` rows count."""
+    always = [r for r in rows if r["policy"] == "always"]
+    cells = {(r["scene"], r["seed"], r["scenario"]) for r in always}
+    ref = {c: next((r for r in always if (r["scene"], r["seed"], r["scenario"]) == c and r["setting"] == "float32"), None)
+           for c in cells}
+    best, best_share = "float32", 1.0
+    for setting in sorted({r["setting"] for r in always} - {"float32"}):
+        mine = [r for r in always if r["setting"] == setting and ref[(r["scene"], r["seed"], r["scenario"])]]
+        if not mine:
+            continue
+        refs = [ref[(r["scene"], r["seed"], r["scenario"])] for r in mine]
+        if all(r["comp_ratio"] >= f["comp_ratio"] - within for r, f in zip(mine, refs)):
+            share = sum(r["mb"] / f["mb"] for r, f in zip(mine, refs)) / len(mine)
+            if share < best_share:
+                best, best_share = setting, share
+    return best
+
+
 def cell_table(rows: list[dict]) -> str:
     """Per cell: each (policy, setting) with completion, MB, its share of float32 `always`'s bytes, points
     against float32 `always` (missing reference: blank)."""
@@ -152,12 +172,22 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--cells", nargs="*", default=[], help="SCENE:SEED, e.g. room1:3")
     parser.add_argument("--policies", nargs="*", default=["always"])
     parser.add_argument("--settings", nargs="*", default=["float32"], choices=sorted(SETTINGS))
+    parser.add_argument("--pick-from", type=Path, default=None,
+                        help="validation rows: also play the setting pick_setting chooses there within each of --within")
+    parser.add_argument("--within", type=float, nargs="*", default=[0.5, 1.0], help="points below float32 always")
     parser.add_argument("--scenario", default="unlimited", choices=sorted(SCENARIOS))
     parser.add_argument("--rows", type=Path, required=True)
     parser.add_argument("--out", type=Path, default=Path("runs/study_codec"))
     parser.add_argument("--plot", type=Path, default=None, help="draw completion against MB here (PNG)")
     args = parser.parse_args(argv)
-    play(args.cells, args.policies, args.settings, args.scenario, args.rows, args.out)
+    settings = list(args.settings)
+    if args.pick_from is not None:
+        validation = read_rows(args.pick_from)
+        for within in args.within:
+            chosen = pick_setting(validation, within)
+            print(f"[codec] chosen on {args.pick_from} within {within} points of float32: {chosen}", flush=True)
+            settings += [chosen] if chosen not in settings else []
+    play(args.cells, args.policies, settings, args.scenario, args.rows, args.out)
     rows = read_rows(args.rows)
     if rows:
         print(cell_table(rows))

@@ -46,3 +46,16 @@ def test_a_messages_bytes_are_cut_into_its_parts_sealed_or_not():
         kind, parts = wire_parts(data)
         assert kind == "params" and parts["params.q"] == 400 and parts["params.scale"] == 7 * 4
         assert sum(parts.values()) == len(data) and ("lossless" in parts) == (lossless == "zstd")
+
+
+def test_the_pick_is_the_fewest_bytes_within_the_points_on_every_validation_cell():
+    from studies.codec_front import pick_setting
+
+    def row(scene, setting, comp, mb):
+        return {"scene": scene, "seed": 0, "scenario": "unlimited", "policy": "always", "setting": setting,
+                "comp_ratio": comp, "mb": mb}
+    rows = [row("a", "float32", 90.0, 100.0), row("a", "8d10", 89.8, 15.0), row("a", "4d5", 89.2, 8.0),
+            row("b", "float32", 91.0, 100.0), row("b", "8d10", 90.9, 14.0), row("b", "4d5", 90.8, 7.0)]
+    assert pick_setting(rows, 0.5) == "8d10"  # 4d5 is 0.8 below on cell a
+    assert pick_setting(rows, 1.0) == "4d5"
+    assert pick_setting(rows, 0.1) == "float32"
