@@ -224,10 +224,54 @@ def test_bad_clouds_and_held_flags_are_refused():
 
 
 def test_a_sparse_delta_cannot_ask_for_an_unbounded_vector():
+    """Where the receiver leaves the length open, a part names at most 32 values a byte it carries (+1024): 616
+    bytes asked for 2^24 values (64 MB decoded) before."""
     coded, _ = encode_vector(np.ones(300, np.float32), 8, 64, np.zeros(300, np.float32), 4, keep=0.01)
-    data = _rewrite(to_bytes(ParameterMessage(0, 1, 5, [_payload(3, code=coded)])), _code_meta("n", 2**40))
-    with pytest.raises(MessageError, match="at most 16777216"):
+    data = _rewrite(to_bytes(ParameterMessage(0, 1, 5, [_payload(3, code=coded)])), _code_meta("n", 2**24))
+    with pytest.raises(MessageError, match="at most 1632"):
         from_bytes(data, MessageRules())
+    still = np.zeros(300, np.float32)
+    empty, _ = encode_vector(still, 8, 64, still, 4)  # nothing moved: no entries at all
+    assert empty.kept == 0 and empty.index is not None
+    data = _rewrite(to_bytes(ParameterMessage(0, 1, 5, [_payload(3, code=empty)])), _code_meta("n", 2**24))
+    with pytest.raises(MessageError, match="at most 1024"):
+        from_bytes(data, MessageRules())
+
+
+def test_codes_whose_values_overflow_and_clouds_whose_span_overflows_are_refused():
+    coded, _ = encode_vector(np.ones(300, np.float32), 8, 64)
+    huge = replace(coded, scales=np.full_like(coded.scales, 3e38), codes=np.full_like(coded.codes, 255))
+    with pytest.raises(MessageError, match="not finite"):
+        from_bytes(to_bytes(ParameterMessage(0, 1, 5, [_payload(3, code=huge)])))
+    codes, _, held = encode_cloud(np.random.default_rng(0).random((40, 3)).astype(np.float32), 16)
+    far = np.array([-3e38] * 3 + [3e38] * 3, np.float32)
+    bad = replace(_payload(3), cloud=held, cloud_code=CodedCloud(codes, far, 16))
+    with pytest.raises(MessageError, match="span is not finite"):
+        from_bytes(to_bytes(ParameterMessage(0, 1, 5, [bad])))
+
+
+def test_a_team_whose_codec_is_off_refuses_coded_and_compressed_messages():
+    rules = MessageRules(coded=False)
+    coded, _ = encode_vector(np.ones(300, np.float32), 8, 64)
+    with pytest.raises(MessageError, match="codec is off"):
+        from_bytes(to_bytes(ParameterMessage(0, 1, 5, [_payload(3, code=coded)])), rules)
+    with pytest.raises(MessageError, match="codec is off"):
+        from_bytes(to_bytes(ParameterMessage(0, 1, 5, [_payload(3)], lossless="zstd")), rules)
+    assert from_bytes(to_bytes(ParameterMessage(0, 1, 5, [_payload(3)])), rules).instances[0].params_code is None
+
+
+def test_still_instances_compress_within_the_inflation_bound():
+    """Ninety instances that did not move: their deltas travel as no entries, so the sealed message stays
+    under the inflation bound (a run of 4 MB of zeros compressed 2,000 times before)."""
+    payloads = []
+    for k in range(90):
+        vector = np.random.default_rng(k).normal(size=11_300).astype(np.float32)
+        code, _ = encode_vector(vector, 32, 64, vector, 0)
+        payloads.append(replace(_payload(k, 11_300, code), params=vector, caption_feature=None))
+    data = to_bytes(ParameterMessage(0, 1, 1, payloads, 1, "zstd"))
+    assert len(unseal(data)) < MAX_INFLATION * len(data)
+    rules = MessageRules(param_counts={"object": 11_300, "structure": 30_788}, feature_dim=8)  # a team's rules
+    assert len(from_bytes(data, rules).instances) == 90
 
 
 # ---- the settings ------------------------------------------------------------------------------------------
@@ -315,3 +359,22 @@ def test_a_coded_team_resumes_from_its_checkpoint_with_the_same_copies(tiny_worl
     a, b = team.round(RoundPlan.always(2)), resumed.round(RoundPlan.always(2))
     assert a.bytes_sent == b.bytes_sent and a.delivered == b.delivered == 4  # deltas to the restored copies
     assert _copies_agree(resumed) > 0
+
+
+def test_a_delta_of_another_bank_or_an_observed_change_off_the_copys_grid_is_refused(tiny_world):
+    from mapping.model.observed import FREE, ObservedSpace
+
+    team = _team(tiny_world, CodecConfig(bits=8, delta=True))
+    team.round(RoundPlan.always(2))
+    receiver = team.members[1]
+    iid, copy = next(iter(receiver.held[0].items()))
+    other = "structure" if copy.bank == "object" else "object"
+    coded, _ = encode_vector(np.ones(7, np.float32), 8, 64, np.zeros(7, np.float32), receiver.held_at[0][iid])
+    wrong = replace(copy, bank=other, params=decode_vector(coded), params_code=coded)
+    assert "a delta of a" in receiver.arrival_problem(ParameterMessage(0, 1, 1, [wrong]))
+    far = ObservedSpace.empty(copy.observed.cell_m if copy.observed is not None else 0.025)
+    far.cover(np.full(3, 12.0), np.full(3, 12.1))
+    far.mark(np.full((1, 3), 12.05), FREE)
+    moved = replace(copy, observed=far, observed_code="delta")
+    problem = receiver.arrival_problem(ParameterMessage(0, 1, 1, [moved]))
+    assert problem is not None and ("does not hold this agent's copy" in problem or "holds none" in problem)

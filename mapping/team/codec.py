@@ -32,6 +32,10 @@ CLOUD_BITS = (8, 16, 32)
 float32 (no scale)."""
 META_FIELDS = frozenset({"n", "bits", "block", "base", "kept", "index"})
 """The scalars of one coded vector (``coded_meta``)."""
+OPEN_VALUES_PER_BYTE, OPEN_VALUES_SLACK = 32, 1024
+"""Where the receiver leaves a vector's length open (``MessageRules.param_counts`` None), a coded part may name at
+most 32 values per byte it carries, plus 1024: a sparse delta of positions names at most 32 values a byte of
+them, a mask 8; without this bound 600 bytes announced 2^24 values (64 MB decoded)."""
 INDEX_FORMS = ("all", "index", "mask")
 """How the kept entries are named: every entry, their positions (int32, 4 bytes an entry) or a bit mask (one
 bit an entry of the vector): the smaller of the two for a sparse delta."""
@@ -90,7 +94,8 @@ def dequantise(codes: np.ndarray, scales: np.ndarray, bits: int, block: int, cou
         return np.asarray(codes, np.float32).reshape(-1)[:count].copy()
     top = (1 << (bits - 1)) - 1
     q = unpack_unsigned(codes, bits, count).astype(np.float32) - np.float32(top)
-    return (q * np.repeat(scales, block)[:count]).astype(np.float32)
+    with np.errstate(over="ignore", invalid="ignore"):  # a crafted scale may overflow: read_coded refuses it
+        return (q * np.repeat(scales, block)[:count]).astype(np.float32)
 
 
 def pack_unsigned(q: np.ndarray, bits: int) -> np.ndarray:
@@ -133,7 +138,9 @@ def encode_vector(values: np.ndarray, bits: int, block: int, base: np.ndarray | 
             raise ValueError(f"a delta needs a base of the vector's length {len(values)}, got {len(base)}")
         target = (values - base).astype(np.float32)
         index = None
-        if keep < 1.0:
+        if not target.any():  # nothing moved: a delta of no entries (a run of zeros compresses past any bound)
+            index, target = np.zeros(0, np.int32), np.zeros(0, np.float32)
+        elif keep < 1.0:
             k = max(1, math.ceil(keep * len(target)))
             if k < len(target):  # the k largest magnitudes (selection, not a sort: linear in D)
                 index = np.sort(np.argpartition(-np.abs(target), k - 1)[:k]).astype(np.int32)
@@ -222,13 +229,14 @@ def encode_cloud(points: np.ndarray, bits: int) -> tuple[np.ndarray, np.ndarray,
 def decode_cloud(codes: np.ndarray, frame: np.ndarray, bits: int) -> np.ndarray:
     """The float32 points ``encode_cloud`` coded (the same arithmetic at both ends)."""
     lo, hi = frame[:3].astype(np.float32), frame[3:].astype(np.float32)
-    span = np.where(hi > lo, hi - lo, np.float32(1)).astype(np.float32)
-    return (lo + codes.astype(np.float32) / np.float32((1 << bits) - 1) * span).astype(np.float32)
+    with np.errstate(over="ignore", invalid="ignore"):  # corners far apart overflow: read_cloud refuses them
+        span = np.where(hi > lo, hi - lo, np.float32(1)).astype(np.float32)
+        return (lo + codes.astype(np.float32) / np.float32((1 << bits) - 1) * span).astype(np.float32)
 
 
 def read_cloud(name: str, bits, arrays: dict[str, np.ndarray], max_points: int) -> np.ndarray:
     """A coded cloud (``NAME.q`` codes, ``NAME.scale`` its box) as float32 points, every field checked."""
-    if bits not in (8, 16) or isinstance(bits, bool):
+    if not isinstance(bits, int) or isinstance(bits, bool) or bits not in (8, 16):
         raise MessageError(f"field {name}_bits: {str(bits)[:40]} (8 or 16; 32 travels as float32)")
     codes = arrays.get(f"{name}.q")
     want = "uint8" if bits == 8 else "uint16"
@@ -239,7 +247,10 @@ def read_cloud(name: str, bits, arrays: dict[str, np.ndarray], max_points: int) 
         raise MessageError(f"array {name}.scale: a box of finite corners, low below high")
     if f"{name}.index" in arrays or f"{name}.mask" in arrays:
         raise MessageError(f"array {name}: a cloud names no positions")
-    return decode_cloud(codes, frame, bits)
+    points = decode_cloud(codes, frame, bits)
+    if not np.all(np.isfinite(points)):  # corners far apart overflow their span
+        raise MessageError(f"array {name}.scale: the box's span is not finite")
+    return points
 
 
 # ---- on the wire ------------------------------------------------------------------------------------------
@@ -275,10 +286,13 @@ def read_coded(name: str, meta, arrays: dict[str, np.ndarray], length: int | Non
     if not isinstance(meta, dict) or set(meta) != META_FIELDS:
         raise MessageError(f"{where}: expected the fields {sorted(META_FIELDS)}")
     n, bits, block, base, kept, form = (meta[k] for k in ("n", "bits", "block", "base", "kept", "index"))
+    if length is None:  # the receiver leaves it open: no more than the part's bytes can honestly name
+        part_bytes = sum(a.nbytes for key, a in arrays.items() if key in set(coded_parts(name)))
+        max_length = min(max_length, OPEN_VALUES_PER_BYTE * part_bytes + OPEN_VALUES_SLACK)
     if not is_count(n) or n > (max_length if length is None else length) or (length is not None and n != length):
         raise MessageError(f"{where}: length {str(n)[:40]}, the receiver's vector has "
                            f"{length if length is not None else f'at most {max_length}'}")
-    if bits not in BITS or isinstance(bits, bool):
+    if not isinstance(bits, int) or isinstance(bits, bool) or bits not in BITS:
         raise MessageError(f"{where}: bit width {str(bits)[:40]} (one of {BITS})")
     if not is_count(block) or not 1 <= block <= 1 << 16:
         raise MessageError(f"{where}: block {str(block)[:40]} (1 to 65536 values)")
@@ -315,7 +329,10 @@ def read_coded(name: str, meta, arrays: dict[str, np.ndarray], length: int | Non
               a != {"index": f"{name}.index", "mask": f"{name}.mask"}.get(form)]
     if unused:
         raise MessageError(f"array {unused[0]}: not a part of a {form!r} code")
-    return CodedVector(n, bits, block, codes, scales, index, base)
+    coded = CodedVector(n, bits, block, codes, scales, index, base)
+    if not np.all(np.isfinite(dequantise(codes, scales, bits, block, kept))):  # code x scale may overflow
+        raise MessageError(f"array {name}.q: its values times their scales are not finite")
+    return coded
 
 
 def _array(arrays: dict[str, np.ndarray], name: str, dtype: str, count: int) -> np.ndarray:

@@ -138,8 +138,10 @@ class CodecConfig:
 
     @property
     def active(self) -> bool:
-        """Whether messages are coded at all (False: today's float32 format, bit for bit)."""
-        return self != CodecConfig()
+        """Whether messages are coded at all (False: today's float32 format, bit for bit): some value travels in
+        fewer bits, as a delta, or compressed (``block`` or ``leave_out_held`` alone code nothing)."""
+        return (self.bits < 32 or self.feature_bits < 32 or self.cloud_bits < 32 or self.delta
+                or self.lossless != "none")
 
 
 @dataclass(frozen=True)

@@ -94,8 +94,9 @@ class Inbox:
             if (inst.caption_feature is None or inst.observed_code is not None) and inst.instance_id not in held:
                 return (f"instance {inst.instance_id}: its {'feature' if inst.caption_feature is None else 'observed space'}"
                         " was left out, this agent never received it")
-            if inst.observed_code == "delta" and held[inst.instance_id].observed is None:
-                return f"instance {inst.instance_id}: a change to an observed space this agent does not hold"
+            problem = _copy_problem(inst, held.get(inst.instance_id))
+            if problem is not None:
+                return f"instance {inst.instance_id}: {problem}"
         return None
 
     def _receive_global(self, message: ParameterMessage) -> AlignmentCounts:
@@ -155,6 +156,29 @@ class Inbox:
         """A ray message arrived: its last pose is where its sender was (all a member knows of its peers'
         positions)."""
         self.peer_positions[message.sender] = (message.round, np.asarray(message.poses[-1][:3, 3], np.float64))
+
+
+def _copy_problem(payload: InstancePayload, copy: InstancePayload | None) -> str | None:
+    """Why ``payload`` cannot be resolved against ``copy`` (checked before it is), or None: a delta to a copy
+    of another bank or length, or that would not be finite; an observed space left out or changed where the copy
+    has none, or a change whose grid does not hold the copy's."""
+    if copy is None:
+        return None
+    if payload.params_code is not None and payload.params_code.base is not None:
+        if copy.bank != payload.bank or len(copy.params) != len(payload.params):
+            return f"a delta of a {payload.bank} vector of {len(payload.params)} values to a {copy.bank} copy of " \
+                   f"{len(copy.params)}"
+        if not np.all(np.isfinite(np.asarray(copy.params, np.float32) + payload.params)):
+            return "a delta that makes its copy not finite"
+    if payload.observed_code is not None and copy.observed is None:
+        return "an observed space left out or changed, and this agent holds none of it"
+    if payload.observed_code == "delta":
+        space, held = payload.observed, copy.observed
+        at = (held.origin - space.origin).tolist()
+        if held.cell_m != space.cell_m or min(at) < 0 or any(
+                a + n > m for a, n, m in zip(at, held.states.shape, space.states.shape)):
+            return "a change to an observed space whose grid does not hold this agent's copy"
+    return None
 
 
 def resolved_payload(payload: InstancePayload, copy: InstancePayload | None) -> InstancePayload:

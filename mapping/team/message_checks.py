@@ -51,6 +51,8 @@ class MessageRules:
             such boxes.
         max_vector_values: the longest coded vector when ``param_counts`` or ``feature_dim`` leave it open (a
             sparse delta names its length: without a bound, a few bytes could ask for any).
+        coded: whether coded messages are read (``mapping.team.codec``): a team whose codec is off refuses them,
+            as it holds no copies to resolve them against.
     """
 
     num_agents: int | None = None
@@ -64,6 +66,18 @@ class MessageRules:
     max_cloud_points: int = 1 << 20
     max_message_cells: int = 1 << 26
     max_vector_values: int = 1 << 24
+    coded: bool = True
+
+
+def team_rules(mapping, exchange, feature_dim: int) -> MessageRules:
+    """What a team with these mapping and exchange settings can use (``MappingConfig``, ``ExchangeConfig``): its
+    networks' lengths, its caption features' length, its observed spaces' cell, whether its codec is on. The
+    channel and the member processes (``remote``) decode with it, so a coded vector's length is always the
+    receiver's own."""
+    from mapping.model.banks import param_counts  # noqa: PLC0415  (the banks' widths)
+
+    return MessageRules(param_counts=param_counts(mapping), feature_dim=feature_dim,
+                        observed_cell_m=mapping.observed_cell_m, coded=exchange.codec.active)
 
 
 @dataclass(frozen=True)
@@ -169,6 +183,9 @@ def instance_meta(k: int, meta, rules: MessageRules) -> InstanceMeta:
         if not isinstance(meta[flag], bool):
             raise MessageError(f"field instances[{k}].{flag}: expected true or false")
     where = f"instances[{k}]."
+    if not rules.coded and set(meta) & CODE_FIELDS:
+        raise MessageError(f"field {where}{sorted(set(meta) & CODE_FIELDS)[0]}: a coded instance, and this team's "
+                           f"codec is off")
     params_code, feature_code = meta.get("params_code"), meta.get("feature_code")
     if params_code is not None and not isinstance(params_code, dict):
         raise MessageError(f"field {where}params_code: expected the code's fields")

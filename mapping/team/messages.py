@@ -201,6 +201,8 @@ def from_bytes(data: bytes, rules: MessageRules = MessageRules()) -> Message:
     bytes that arrived (``wire``); a parameter message's grids, which inflate, are bounded by its cap first."""
     try:
         data = bytes(data)
+        if not rules.coded and data.startswith(ENVELOPE):
+            raise MessageError("a compressed message, and this team's codec is off")
         kind, s, table, body = read_message(data)
         base = (agent_field(s, "sender", rules), agent_field(s, "receiver", rules), count_field(s, "round"))
         if kind == "params":
@@ -254,7 +256,7 @@ def _instance(k: int, m: InstanceMeta, arrays: dict[str, np.ndarray], rules: Mes
     params_code = None
     if m.params_code is not None:
         params_code = read_coded(f"{k}.params", m.params_code, arrays, want, rules.max_vector_values)
-        params = decode_vector(params_code)
+        params = decode_vector(params_code)  # finite: read_coded checked every value times its scale
     else:
         params = checked_array(arrays, f"{k}.params", (None,))
         if want is not None and len(params) != want:

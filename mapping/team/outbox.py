@@ -62,14 +62,15 @@ class Outbox:
                 if cloud is not None and ex.codec.cloud_bits < 32:
                     cloud_code = CodedCloud(*encode_cloud(cloud, ex.codec.cloud_bits)[:2], ex.codec.cloud_bits)
                 space, form = inst.observed, None
-                if inst.observed is not None and ex.codec.delta and ex.codec.leave_out_held:
+                tracked = inst.observed is not None and ex.codec.delta and ex.codec.leave_out_held
+                if tracked:  # the change to the receiver's copy (booked as the whole space on acknowledgement)
                     space, form = observed_change(inst.observed, observed.get(iid))
                     form = None if form == "whole" else form
                 payloads.append((InstancePayload(
                     iid, inst.bank, held, *box, inst.frame.half, inst.frame.origin, inst.frame.version, entry.caption,
                     None if feature_code is None else held_feature, entry.confidence, cloud, space, params_code,
                     feature_code, cloud_code, form),
-                    held, points, (held_feature, None if inst.observed is None else inst.observed.copy())))
+                    held, points, (held_feature, inst.observed.copy() if tracked else None)))
                 continue
             dtype = np.float16 if ex.float16 else np.float32
             payloads.append((InstancePayload(

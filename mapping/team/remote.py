@@ -23,7 +23,8 @@ import numpy as np
 from mapping.perception.vocabulary import Vocabulary
 from mapping.team.config import TeamConfig
 from mapping.team.member import AgentStream, LocalReport, StreamReader, TeamMember
-from mapping.team.messages import Message, from_bytes, to_bytes
+from mapping.team.message_checks import team_rules
+from mapping.team.messages import Message, MessageRules, from_bytes, to_bytes
 from mapping.team.report import AgentSnapshot, AlignmentCounts, ConsistencyTerms
 from mapping.model.topdown import ColumnGrid, ColumnMap
 
@@ -67,8 +68,8 @@ def _wire(message: Message | None) -> bytes | None:
     return None if message is None else to_bytes(message)
 
 
-def _unwire(data: bytes | None) -> Message | None:
-    return None if data is None else from_bytes(data)
+def _unwire(data: bytes | None, rules: MessageRules) -> Message | None:
+    return None if data is None else from_bytes(data, rules)
 
 
 class MemberProcess:
@@ -82,6 +83,7 @@ class MemberProcess:
             torch.set_num_threads(threads)
         self.frames = HandedFrames(frames)
         self.member = TeamMember(index, self.frames, config, vocabulary, seed=seed, device=device, init_seed=init_seed)
+        self.rules = team_rules(config.mapping, config.exchange, vocabulary.features.shape[1])
 
     def local_round(self, read: tuple[list, float]) -> LocalReport:
         self.frames.hand(self.member.next_frame, views_of([frame for frame, _ in read[0]]))
@@ -105,21 +107,21 @@ class MemberProcess:
         self.member.acknowledge(receiver, kind, delivered, round_index)
 
     def note_rays(self, data: bytes) -> None:
-        self.member.note_rays(_unwire(data))
+        self.member.note_rays(_unwire(data, self.rules))
 
     def receive_parameters(self, data: bytes) -> AlignmentCounts:
-        return self.member.receive_parameters(_unwire(data))
+        return self.member.receive_parameters(_unwire(data, self.rules))
 
     def arrival_problem(self, data: bytes) -> str | None:
-        return self.member.arrival_problem(_unwire(data))
+        return self.member.arrival_problem(_unwire(data, self.rules))
 
     def degree_messages(self, round_index: int) -> list[bytes]:
         return [_wire(m) for m in self.member.degree_messages(round_index)]
 
     def consistency_round(self, rays: Sequence[bytes], round_index: int, listings: Sequence[bytes],
                           acknowledged: frozenset) -> ConsistencyTerms:
-        return self.member.consistency_round([_unwire(d) for d in rays], round_index,
-                                             [_unwire(d) for d in listings], acknowledged)
+        return self.member.consistency_round([_unwire(d, self.rules) for d in rays], round_index,
+                                             [_unwire(d, self.rules) for d in listings], acknowledged)
 
     def snapshot(self, rounds: int, new_frames: Sequence, budget_left_bytes: float,
                  link_bytes: np.ndarray) -> AgentSnapshot:
@@ -203,6 +205,7 @@ class RemoteMember(StreamReader):
 
         self._ray = ray
         self.index, self.stream, self.config = index, stream, config
+        self.rules = team_rules(config.mapping, config.exchange, vocabulary.features.shape[1])
         self.next_frame = 0
         self.actor = ray.remote(MemberProcess).options(num_cpus=placement.num_cpus, num_gpus=placement.num_gpus).remote(
             index, len(stream), config, vocabulary, seed, placement.device, max(1, int(placement.num_cpus)), init_seed)
@@ -219,13 +222,13 @@ class RemoteMember(StreamReader):
     def parameter_message(self, receiver: int, round_index: int, degree: int, only=None,
                           max_bytes: float | None = None, new: bool = False) -> Message | None:
         return _unwire(self._call("parameter_message", receiver, round_index, degree,
-                                  None if only is None else tuple(only), max_bytes, bool(new)))
+                                  None if only is None else tuple(only), max_bytes, bool(new)), self.rules)
 
     def point_cloud_message(self, receiver: int, round_index: int) -> Message:
-        return _unwire(self._call("point_cloud_message", receiver, round_index))
+        return _unwire(self._call("point_cloud_message", receiver, round_index), self.rules)
 
     def ray_message(self, receiver: int, round_index: int, seed: int) -> Message | None:
-        return _unwire(self._call("ray_message", receiver, round_index, seed))
+        return _unwire(self._call("ray_message", receiver, round_index, seed), self.rules)
 
     def acknowledge(self, receiver: int, kind: str, delivered: bool, round_index: int) -> None:
         self._call("acknowledge", receiver, kind, delivered, round_index)
@@ -240,7 +243,7 @@ class RemoteMember(StreamReader):
         return self._call("arrival_problem", _wire(message))
 
     def degree_messages(self, round_index: int) -> list[Message]:
-        return [_unwire(d) for d in self._call("degree_messages", round_index)]
+        return [_unwire(d, self.rules) for d in self._call("degree_messages", round_index)]
 
     def consistency_round(self, ray_messages: Sequence[Message], round_index: int, listings: Sequence[Message] = (),
                           acknowledged: frozenset = frozenset()) -> ConsistencyTerms:

@@ -24,7 +24,6 @@ from typing import Sequence
 import numpy as np
 
 from mapping.model.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
-from mapping.model.banks import param_counts
 from mapping.model.fleet import ExtraLoss, fleet_train
 from mapping.perception.vocabulary import Vocabulary
 from mapping.team.channel import DELIVERED, DROPPED, OVER_BUDGET, Channel
@@ -32,7 +31,8 @@ from mapping.team.config import TeamConfig
 from mapping.team.plan import ChannelConfig, PlanError, RoundPlan
 from mapping.team.links import LinkLimits, round_limits
 from mapping.team.member import AgentStream, TeamMember
-from mapping.team.messages import DegreeMessage, MessageRules, ParameterMessage, RayMessage, to_bytes
+from mapping.team.message_checks import team_rules
+from mapping.team.messages import DegreeMessage, ParameterMessage, RayMessage, to_bytes
 from mapping.team.report import (AgentSnapshot, AlignmentCounts, ConsistencyTerms, DeliveryRecord, LossTerms,
                                  RoundReport)
 from mapping.team.state import member_state, restore_member
@@ -95,8 +95,7 @@ class Team:
             self.members = [TeamMember(i, s, config, vocabulary, seed=seed * 100 + i, device=device, init_seed=init_seed)
                             for i, s in enumerate(streams)]
         self.channel_config = channel
-        rules = MessageRules(param_counts=param_counts(config.mapping), feature_dim=vocabulary.features.shape[1],
-                             observed_cell_m=config.mapping.observed_cell_m)
+        rules = team_rules(config.mapping, config.exchange, vocabulary.features.shape[1])
         self.channel = Channel(len(streams), channel.success_matrix(len(streams)), channel.budget_bytes,
                                seed=zlib.crc32(f"channel-{seed}".encode()), rules=rules)
         self.round_index = 0

@@ -37,11 +37,14 @@ array although it is empty."""
 ENVELOPE = b"OMMSZ"
 LOSSLESS = ("none", "zlib", "zstd")
 """The codec's lossless stages: none, zlib (the standard library's) or zstd (the ``zstandard`` package)."""
-MAX_INFLATION = 64
-"""A compressed message may announce at most this many times its own bytes (and at least ``MIN_INFLATED``):
-honest messages compress 1.1-4x (headers, quantised codes, grids already compressed); zeros compress 1000x,
-so without a limit 4 kB could announce gigabytes."""
+MAX_INFLATION = 1024
+"""A compressed message may announce at most this many times its own bytes (at least ``MIN_INFLATED``, at most
+``MAX_INFLATED``): coded messages compress 1.1-4x, and 250-550x when most instances are still (a delta that
+rounds to nothing; a delta of exact zeros travels as no entries); zeros compress 1000x and more, so without a
+limit 4 kB could announce gigabytes."""
 MIN_INFLATED = 1 << 20
+MAX_INFLATED = 1 << 28
+"""256 MiB: no message inflates past this, however large (a `fast` round's float32 message is 2.4 MB)."""
 
 
 class MessageError(ValueError):
@@ -105,12 +108,12 @@ def unseal(data: bytes) -> bytes:
         raise MessageError("truncated message (compressed envelope)")
     method = data[len(ENVELOPE)]
     (size,) = struct.unpack("<Q", data[len(ENVELOPE) + 1:head])
-    limit = max(MIN_INFLATED, MAX_INFLATION * len(data))
+    limit = min(MAX_INFLATED, max(MIN_INFLATED, MAX_INFLATION * len(data)))
     if method == 0 or method >= len(LOSSLESS):
         raise MessageError(f"compressed message of unknown method {method}")
     if size > limit:
         raise MessageError(f"compressed message announces {size} bytes, over {limit} ({MAX_INFLATION} times its "
-                           f"{len(data)} bytes)")
+                           f"{len(data)} bytes, between {MIN_INFLATED} and {MAX_INFLATED})")
     try:
         if LOSSLESS[method] == "zlib":
             inflater = zlib.decompressobj()
