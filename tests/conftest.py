@@ -137,7 +137,7 @@ MODULE_SECONDS = {  # seconds per test, measured on 2 cores (a module's mean; it
     "test_cli.py": 10.0, "test_reproduce.py": 8.0, "test_env_api.py": 6.0, "test_ray_grid.py": 6.0,
     "test_depth_check.py": 4.5, "test_data_run.py": 4.0, "test_reward_front.py": 3.5, "test_env_clients.py": 3.5,
     "test_env_behaviour.py": 3.0, "test_learning.py": 2.0, "test_fleet.py": 2.0, "test_env_observation.py": 4.0,
-    "test_policy_files.py": 1.0, "test_team.py": 0.8, "test_links_and_instances.py": 0.8,
+    "test_policy_files.py": 1.0, "test_team.py": 0.8, "test_links_and_instances.py": 0.8, "test_codec.py": 1.5,
 }
 DEFAULT_SECONDS = 0.3
 SPLIT_MODULE_SECONDS, SPLIT_MODULE_TESTS = 60.0, 100  # a module longer or larger than this is shared out by test

@@ -378,3 +378,28 @@ def test_a_delta_of_another_bank_or_an_observed_change_off_the_copys_grid_is_ref
     moved = replace(copy, observed=far, observed_code="delta")
     problem = receiver.arrival_problem(ParameterMessage(0, 1, 1, [moved]))
     assert problem is not None and ("does not hold this agent's copy" in problem or "holds none" in problem)
+
+
+def test_the_env_runs_the_codec_in_every_action_form_and_passes_pettingzoos_test(warm_env_kwargs):
+    """The codec is part of the episode's settings: the same spaces, and PettingZoo's parallel API test passes with
+    coded, compressed messages over capacity-limited links in the instances form."""
+    from pettingzoo.test import parallel_api_test
+
+    from openmulti_env import parallel_env
+
+    codec = dict(team__exchange__codec__bits=8, team__exchange__codec__delta=True, team__exchange__codec__keep=0.1,
+                 team__exchange__codec__cloud_bits=16, team__exchange__codec__lossless="zstd")
+    kwargs = warm_env_kwargs(preset="rl_tiny", num_agents=3, action_form="instances", instance_slots=4,
+                             link_mb_per_round=0.05)
+    coded, plain = parallel_env(**kwargs, **codec), parallel_env(**kwargs)
+    for agent in coded.possible_agents:
+        assert coded.observation_space(agent) == plain.observation_space(agent)
+        assert coded.action_space(agent) == plain.action_space(agent)
+    assert coded.config.team.exchange.codec.active and not plain.config.team.exchange.codec.active
+    parallel_api_test(coded, num_cycles=4)
+    for form in ("entries", "round"):
+        env = parallel_env(**{**kwargs, "action_form": form}, **codec)
+        env.reset(seed=1)
+        _, _, _, _, infos = env.step({a: np.ones_like(env.action_space(a).sample()) for a in env.agents})
+        assert all(info["messages_delivered"] >= 0 for info in infos.values())
+        env.close()
