@@ -147,8 +147,15 @@ class TextEncoder:
                     self._model = NumpySentenceEncoder(folder)
                 else:
                     from sentence_transformers import SentenceTransformer  # noqa: PLC0415
+                    from transformers.utils import logging as transformers_logging  # noqa: PLC0415
 
-                    self._model = SentenceTransformer(str(folder), device=self.device)
+                    shown = transformers_logging.is_progress_bar_enabled()
+                    transformers_logging.disable_progress_bar()  # no "Loading weights" bar on every env or run
+                    try:
+                        self._model = SentenceTransformer(str(folder), device=self.device)
+                    finally:
+                        if shown:
+                            transformers_logging.enable_progress_bar()
             except Exception as exc:  # a broken folder: name it instead of a deep transformers trace
                 raise TextEncoderError(f"could not load text encoder {self.name!r} from {folder}: {exc}") from exc
         return self._model
