@@ -30,6 +30,7 @@ from openmulti_env.runs.reproduce.tables import HELD_OUT_SCENES
 from openmulti_env.runs.reproduce.tradeoff import tradeoff_lines
 from openmulti_env.runs.reproduce.writers import group_rows, mean_sd, method_lines
 from studies import demo_results
+from studies.codec_front import cell_table
 from studies.schedules_tradeoff import load_rows, summary
 from studies.staleness import (Git, RowsStamp, Staleness, jsonl_rows, made_stamp, read_neutral, reproduce_fallback,
                                stamp_rows, staleness)
@@ -94,6 +95,9 @@ class Section:
     body: Callable[[list[list[dict]]], list[str]]
     lead: str = ""
     more: str = ""
+    neutral: bool = True
+    """Whether the commits listed as neutral are neutral for these rows (False for rows of settings those commits'
+    checks did not cover, such as the codec's: they were checked with the codec off)."""
 
 
 @dataclass(frozen=True)
@@ -148,7 +152,7 @@ def stale_text(found: Staleness) -> str:
 def render_section(ctx: Context, section: Section) -> list[str]:
     """Title, lead, rows files and stamps, the measured paths, the staleness line, the table, where to read on."""
     files = [read_rows_file(ctx, path) for path in section.files]
-    found = staleness(ctx.git, [f.stamp for f in files], section.measures, ctx.neutral)
+    found = staleness(ctx.git, [f.stamp for f in files], section.measures, ctx.neutral if section.neutral else {})
     rows_said = "; ".join(f"{link(f.stamp.path)}, {stamp_text(f.stamp)}" for f in files)
     lines = [f"## {section.title}", ""]
     if section.lead:
@@ -268,12 +272,23 @@ def sections(ctx: Context) -> list[Section]:
                 SCHEDULE_CODE, lambda files: [], "Gates trained at `rl_lite`, judged against the fixed-rate and "
                 "`instance_novelty` fronts on cells never trained on.",
                 "One table per link scenario: [schedules.md](schedules.md); training and figures: [learning.md](learning.md)."),
+        Section("What a message costs: the codec at `fast`", ("docs/codec/validation.jsonl", "docs/codec/test.jsonl"),
+                RUN_CODE, codec_body, "`always` under each codec setting beside float32 `always` made by the same code; "
+                "settings chosen on the validation cell (room0 s0), reported on cells never used for a choice.",
+                "Settings, bytes by part and what coding costs: [codec.md](codec.md).", neutral=False),
         Section("Env and training speed", ("docs/profile/train_rate_rows.jsonl",), TRAIN_CODE, lambda files: [],
                 "`openmulti train`'s env steps per hour (`benchmarks/bench_train_rate.py`); the env's steps per second "
                 "have no rows file.",
                 "[profile.md](profile.md#openmulti-trains-env-steps-per-hour-side-by-side-with-main-at-6892348-issue-47s-headline-target), "
                 "[env.md](env.md)."),
     ]
+
+
+def codec_body(files: list[list[dict]]) -> list[str]:
+    """The codec study's validation and test tables (``studies.codec_front.cell_table``)."""
+    validation, test = files
+    return ["Validation:", "", cell_table(validation), "", "Test cells:", "",
+            cell_table(test) if test else "(no rows yet)"]
 
 
 def demo_staleness(ctx: Context, demo: demo_results.DemoRun) -> tuple[RowsStamp, Staleness]:
