@@ -97,8 +97,10 @@ class ConsistencyConfig:
 
 @dataclass(frozen=True)
 class CodecConfig:
-    """How a parameter message codes what it carries (``mapping.team.codec``; docs/codec.md). The defaults
-    send every vector whole as float32 with no compression, as before the codec existed."""
+    """How a parameter message codes what it carries (docs/codec.md); the defaults code nothing.
+
+    With the defaults every vector travels whole as float32, uncompressed, as before the codec existed
+    (``mapping.team.codec``)."""
 
     bits: int = field(default=32, metadata=bounded(4, 32))
     """Bits of each network value sent: 32 (float32), 16 (float16), 8 or 4 (integers with a float32 scale per
