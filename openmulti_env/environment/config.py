@@ -44,6 +44,21 @@ def env_config(preset: str = DEFAULT_PRESET, **overrides) -> Experiment:
     return tree
 
 
+def pettingzoo_arguments(num_agents: int | None, max_cycles: int | None, overrides: dict) -> tuple[int | None, dict]:
+    """PettingZoo's ``num_agents`` and ``max_cycles`` beside the tree's short spellings ``agents`` and ``horizon``:
+    the team size and the overrides with the horizon set; ValueError when a pair disagrees."""
+    overrides = dict(overrides)
+    if max_cycles is not None and overrides.get("horizon") is not None and overrides["horizon"] != max_cycles:
+        raise ValueError(f"max_cycles={max_cycles} and horizon={overrides['horizon']} disagree; give one")
+    if max_cycles is not None:
+        overrides["horizon"] = max_cycles
+    if "agents" in overrides:
+        if num_agents is not None and overrides["agents"] != num_agents:
+            raise ValueError(f"num_agents={num_agents} and agents={overrides['agents']} disagree; give one")
+        num_agents = overrides.pop("agents")
+    return num_agents, overrides
+
+
 def env_workers(tree: Experiment) -> int:
     """Agent worker threads of the env: ``run.workers``, or one per core up to one per agent."""
     return tree.run.workers or max(1, min(tree.num_agents, available_cores()))

@@ -125,7 +125,7 @@ from mapping.perception import shared_text_encoder
 from mapping.runtime import torch_threads
 from mapping.team import Team
 from openmulti_env.environment.actions import ActionError, action_size, actions_to_plan
-from openmulti_env.environment.config import DEFAULT_PRESET, env_config, env_workers
+from openmulti_env.environment.config import DEFAULT_PRESET, env_config, env_workers, pettingzoo_arguments
 from openmulti_env.experiment import Experiment
 from openmulti_env.environment.rewards import EpisodeRewards, RewardBaselines, play_fixed
 from openmulti_env.environment.render import team_picture
@@ -151,14 +151,7 @@ class OpenMultiParallelEnv(ParallelEnv, EzPickle):
                  reward: str = "team", max_cycles: int | None = None, **overrides):
         EzPickle.__init__(self, scene=scene, num_agents=num_agents, preset=preset, seed=seed, render_mode=render_mode,
                           comm_budget_mb=comm_budget_mb, reward=reward, max_cycles=max_cycles, **overrides)
-        if max_cycles is not None and overrides.get("horizon") is not None and overrides["horizon"] != max_cycles:
-            raise ValueError(f"max_cycles={max_cycles} and horizon={overrides['horizon']} disagree; give one")
-        if max_cycles is not None:
-            overrides["horizon"] = max_cycles
-        if "agents" in overrides:  # the short spelling of world.num_agents, PettingZoo's num_agents here
-            if num_agents is not None and overrides["agents"] != num_agents:
-                raise ValueError(f"num_agents={num_agents} and agents={overrides['agents']} disagree; give one")
-            num_agents = overrides.pop("agents")
+        num_agents, overrides = pettingzoo_arguments(num_agents, max_cycles, overrides)
         self.config: Experiment = env_config(preset, scene=scene, agents=num_agents, comm_budget_mb=comm_budget_mb,
                                             reward=reward, **overrides)
         if render_mode is not None and render_mode not in RENDER_MODES + ("human",):
