@@ -42,20 +42,41 @@ def surface_probe_coverage(mapper, points: np.ndarray, normals: np.ndarray,
     covered : (P,) bool
       True where some instance's occupancy crosses ``level`` on the probe segment.
     """
+    covered = np.zeros(len(np.asarray(points)), bool)
+    for _, point, crosses in _crossings(mapper, points, normals, offsets_m, level):
+        covered[point[crosses]] = True
+    return covered
+
+
+@torch.no_grad()
+def instance_probe_coverage(mapper, points: np.ndarray, normals: np.ndarray,
+                            offsets_m: Sequence[float] = DEFAULT_OFFSETS_M, level: float = 0.5) -> dict[int, np.ndarray]:
+    """Per live instance id, which surface points that instance alone reproduces: ``surface_probe_coverage`` is
+    their union (a recorded episode replays each instance's share, ``mapping.team.recording``)."""
+    out = {iid: np.zeros(len(np.asarray(points)), bool) for iid in mapper.live_ids()}
+    for iids, point, crosses in _crossings(mapper, points, normals, offsets_m, level):
+        for iid in np.unique(iids[crosses]):
+            out[int(iid)][point[crosses & (iids == iid)]] = True
+    return out
+
+
+def _crossings(mapper, points: np.ndarray, normals: np.ndarray, offsets_m: Sequence[float], level: float):
+    """Per bank: (instance id, point index, crosses) of every (instance, point) pair within the instance's box
+    plus the probe reach, as NumPy arrays."""
     points = np.asarray(points, np.float32)
     normals = np.asarray(normals, np.float32)
     if points.ndim != 2 or points.shape[1] != 3 or normals.shape != points.shape:
         raise ValueError(f"points and normals must both be (P, 3), got {points.shape} and {normals.shape}")
-    covered = torch.zeros(len(points), dtype=torch.bool, device=mapper.device)
     if len(points) == 0:
-        return covered.cpu().numpy()
+        return
     offsets = torch.as_tensor(list(offsets_m), dtype=torch.float32, device=mapper.device)
     reach = float(offsets.abs().max())
     p = torch.as_tensor(points, device=mapper.device)
     n = torch.as_tensor(normals, device=mapper.device)
     probes = p[:, None] + offsets[None, :, None] * n[:, None]  # (P, K, 3)
     for name, bank in mapper.banks.items():
-        rows = sorted(s.row for s in mapper.slots.values() if s.bank == name and s.alive)
+        by_row = {s.row: iid for iid, s in mapper.slots.items() if s.bank == name and s.alive}
+        rows = sorted(by_row)
         if not rows:
             continue
         rows_t = torch.as_tensor(rows, dtype=torch.long, device=mapper.device)
@@ -70,8 +91,8 @@ def surface_probe_coverage(mapper, points: np.ndarray, normals: np.ndarray,
         occ = field.query(pts.reshape(-1, 3), rows_t[inst].repeat_interleave(len(offsets)), with_colour=False)
         occ = torch.where(inside, occ.occupancy.reshape(inside.shape), torch.zeros_like(inside, dtype=torch.float32))
         crosses = (occ.max(dim=1).values > level) & (occ.min(dim=1).values < level)
-        covered[point[crosses]] = True
-    return covered.cpu().numpy()
+        ids = np.asarray([by_row[r] for r in rows], np.int64)[inst.cpu().numpy()]
+        yield ids, point.cpu().numpy(), crosses.cpu().numpy()
 
 
 def estimated_completion_ratio(covered: np.ndarray) -> float:

@@ -88,3 +88,42 @@ def column_map(mapper, grid: ColumnGrid, level: float = 0.5) -> ColumnMap:
     top_level = len(zs) - 1 - np.argmax(occupied[:, :, ::-1], axis=2)
     top = np.where(any_occupied, zs[top_level], np.nan)
     return ColumnMap(top, decided.reshape(shape).float().mean(dim=2).cpu().numpy())
+
+
+@dataclass(frozen=True)
+class InstanceColumns:
+    """What one instance alone puts in the columns of a ``ColumnGrid``: the columns its box covers (flat row-major
+    indices), the top of its occupied voxels there (NaN: none) and the share of each column it decides."""
+
+    columns: np.ndarray
+    top: np.ndarray
+    decided: np.ndarray
+
+
+@torch.no_grad()
+def instance_columns(mapper, grid: ColumnGrid, level: float = 0.5) -> dict[int, InstanceColumns]:
+    """``column_map`` one live instance at a time (a recorded episode adds a held copy's columns to a receiver's
+    map, ``mapping.team.recorded``): the union's ``top`` is the largest of these; its ``decided`` is at most their sum."""
+    xs, ys, zs = (np.asarray(a, np.float64) for a in (grid.xs, grid.ys, grid.zs))
+    out = {}
+    for name, bank in mapper.banks.items():
+        for iid, slot in sorted((i, s) for i, s in mapper.slots.items() if s.bank == name and s.alive):
+            lo, hi = bank.bound_min[slot.row].cpu().numpy(), bank.bound_max[slot.row].cpu().numpy()
+            (c0, c1), (r0, r1), (l0, l1) = (grid.index_range(xs, lo[0], hi[0]), grid.index_range(ys, lo[1], hi[1]),
+                                            grid.index_range(zs, lo[2], hi[2]))
+            if c1 <= c0 or r1 <= r0 or l1 <= l0:
+                continue
+            r, c, k = np.meshgrid(np.arange(r0, r1), np.arange(c0, c1), np.arange(l0, l1), indexing="ij")
+            queried = torch.as_tensor(np.stack([xs[c.ravel()], ys[r.ravel()], zs[k.ravel()]], axis=1),
+                                      dtype=torch.float32, device=mapper.device)
+            rows = torch.full((len(queried),), slot.row, dtype=torch.long, device=mapper.device)
+            field = mapper.observed_field(name)
+            occ = field.query(queried, rows, with_colour=False).occupancy
+            sure = (((occ - 0.5).abs() >= DECIDED_MARGIN) & field.looked(queried, rows)).cpu().numpy()
+            occupied = (occ > level).cpu().numpy().reshape(r.shape)
+            levels = zs[np.arange(l0, l1)]
+            top = np.where(occupied.any(axis=2), levels[len(levels) - 1 - np.argmax(occupied[:, :, ::-1], axis=2)], np.nan)
+            out[iid] = InstanceColumns((r[:, :, 0] * len(xs) + c[:, :, 0]).ravel().astype(np.int32),
+                                       top.ravel().astype(np.float32),
+                                       (sure.reshape(r.shape).sum(axis=2) / len(zs)).ravel().astype(np.float32))
+    return out

@@ -342,3 +342,13 @@ def _array(arrays: dict[str, np.ndarray], name: str, dtype: str, count: int) -> 
     if a.dtype.name != dtype or a.ndim != 1 or len(a) != count:
         raise MessageError(f"array {name}: expected ({count},) {dtype}, got {a.shape} {a.dtype}")
     return a
+
+
+def vector_wire_bytes(exchange, length: int, has_copy: bool) -> int:
+    """Bytes one network vector of ``length`` values takes in a message under ``exchange`` (an ``ExchangeConfig``):
+    float32 or float16 whole, or as the codec writes it (a delta's kept share when the peer holds a copy)."""
+    c = exchange.codec
+    if not c.active:
+        return int(length * (2 if exchange.float16 else 4))
+    kept = max(1, math.ceil(c.keep * length)) if c.delta and has_copy and c.keep < 1 else None
+    return vector_bytes(length, c.bits, c.block, kept)

@@ -13,7 +13,6 @@ delivered one gave the peer), ``receive_parameters`` (hold, align on arrival, ad
 
 from __future__ import annotations
 
-import math
 import time
 from dataclasses import dataclass, replace
 from typing import Callable, Protocol, Sequence
@@ -30,7 +29,7 @@ from mapping.perception.types import FrameSegmentation
 from mapping.perception.vocabulary import Vocabulary
 from mapping.team.agreement import Agreement, PenaltyReading
 from mapping.team.config import TeamConfig
-from mapping.team.codec import vector_bytes
+from mapping.team.codec import vector_wire_bytes
 from mapping.team.consistency import PairKey
 from mapping.team.global_map import as_global_image, global_entry
 from mapping.team.inbox import Inbox
@@ -263,11 +262,7 @@ class TeamMember(StreamReader, Outbox, Inbox, Agreement):
     def vector_wire_bytes(self, length: int, has_copy: bool) -> int:
         """Bytes one network vector of ``length`` values takes in a message: float32 or float16 whole, or as the
         codec writes it (a delta's kept share when the peer holds a copy)."""
-        c = self.config.exchange.codec
-        if not c.active:
-            return int(length * (2 if self.config.exchange.float16 else 4))
-        kept = max(1, math.ceil(c.keep * length)) if c.delta and has_copy and c.keep < 1 else None
-        return vector_bytes(length, c.bits, c.block, kept)
+        return vector_wire_bytes(self.config.exchange, length, has_copy)
 
     def confidence_of(self, iid: int) -> float:
         """The instance's confidence (eq. 1-2; a peer's when alignment gave it a more confident meaning)."""

@@ -129,6 +129,7 @@ from openmulti_env.environment.config import DEFAULT_PRESET, env_config, env_wor
 from openmulti_env.experiment import Experiment
 from openmulti_env.environment.rewards import EpisodeRewards, RewardBaselines, play_fixed
 from openmulti_env.environment.render import team_picture
+from openmulti_env.environment.recorded_episode import RecordedEpisodes
 from openmulti_env.environment.observation import ProbeRaster, observed_slots, slot_instances, team_observer
 from openmulti_env.world.cache import cached_world
 from openmulti_env.world.stream import RenderCache, world_streams, world_vocabulary
@@ -227,7 +228,13 @@ class OpenMultiParallelEnv(ParallelEnv, EzPickle):
         self.timings = {"reset_s": time.perf_counter() - start}
         return observations, infos
 
-    def _new_team(self, episode_seed: int) -> Team:
+    def _new_team(self, episode_seed: int):
+        """The episode's team: the real mapper, or with ``episode="recorded"`` a ``RecordedTeam``."""
+        if self._recorded is not None:
+            return self._recorded.team(episode_seed)
+        return self._real_team(episode_seed)
+
+    def _real_team(self, episode_seed: int) -> Team:
         cfg = self.config
         encoder = shared_text_encoder(name=cfg.perception.text_encoder, persist=True)
         streams = world_streams(self.world, episode_seed, cfg.perception.segmentation_errors, text_encoder=encoder,
@@ -236,6 +243,11 @@ class OpenMultiParallelEnv(ParallelEnv, EzPickle):
             self._vocabulary = world_vocabulary(self.world, encoder)
         return Team(streams, cfg.team, self._vocabulary, seed=episode_seed, channel=cfg.channel, device=cfg.run.device,
                     workers=env_workers(cfg), processes=cfg.run.processes, learner=cfg.run.learner)
+
+    @property
+    def recorded_episodes(self) -> RecordedEpisodes | None:
+        """With ``episode="recorded"``: the world's recordings (their real teams and probes, for checks)."""
+        return self._recorded
 
     def _fixed_player(self):
         """``play(episode_seed, schedule)`` of a fixed schedule on this env's world (the reward's baselines)."""
@@ -262,6 +274,8 @@ class OpenMultiParallelEnv(ParallelEnv, EzPickle):
         self._floor = floor.reshape(cfg.env.map_size, cfg.env.map_size)
         self._vocabulary = None
         self._frames = RenderCache(self.world, cfg.env.frame_cache_mb)
+        self._recorded = RecordedEpisodes(cfg, self.world_seed, self._real_team, points, normals, self._observer) \
+            if cfg.env.episode == "recorded" else None
         self._rewarder = EpisodeRewards(cfg.env, RewardBaselines(cfg, self.world_seed, self._fixed_player())
                                         if cfg.env.reward_baseline != "none" else None)
 

@@ -108,6 +108,7 @@ def name_problem(tree: Experiment) -> str | None:
              ("env.reward", tree.env.reward, REWARD_MODES),
              ("env.reward_baseline", tree.env.reward_baseline, REWARD_BASELINES),
              ("env.action_form", tree.env.action_form, ("entries", "round", "instances")),
+             ("env.episode", tree.env.episode, ("real", "recorded")),
              ("run.learner", tree.run.learner, LEARNERS),
              ("data.kind", tree.data.kind, DATA_KINDS))
     for path, value, known in names:

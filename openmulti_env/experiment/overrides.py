@@ -39,7 +39,8 @@ ALIASES: dict[str, str] = {
     "link_range_m": "channel.link_range_m", "link_success": "channel.link_success", "link_mb_per_round": "channel.link_mb_per_round",
     # the env
     "reward": "env.reward", "comm_cost_per_mb": "env.comm_cost_per_mb", "reward_baseline": "env.reward_baseline",
-    "comm_cost_of_always": "env.comm_cost_of_always", "action_form": "env.action_form",
+    "comm_cost_of_always": "env.comm_cost_of_always", "action_form": "env.action_form", "episode": "env.episode",
+    "recordings": "env.recordings",
     "instance_slots": "env.instance_slots", "budget_penalty": "env.budget_penalty",
     "probe_points": "env.probe_points", "map_size": "env.map_size", "horizon": "env.horizon",
     "frame_cache_mb": "env.frame_cache_mb", "cache_dir": "env.cache_dir",

@@ -110,6 +110,13 @@ class EnvSettings:
     """World-geometry cache folder (default: ``$OPENMULTI_CACHE`` or ``~/.cache/openmulti``, then ``worlds/``)."""
     cache_max_mb: float = field(default=2048.0, metadata=bounded(0, 1e9))
     """Size cap of the world cache; the least recently used entries go first."""
+    episode: str = "real"
+    """``real``: every step runs the mapper; ``recorded``: each episode replays one of ``recordings`` real episodes
+    (recorded once per world and cached beside the world cache) and models what the actions change
+    (``mapping.team.recorded``, docs/recorded.md): the same spaces, actions, rewards and infos, milliseconds a step."""
+    recordings: int = field(default=4, metadata=bounded(1, 10_000))
+    """With ``episode="recorded"``: real episodes recorded per world; ``reset(seed)`` picks one by its episode seed
+    (the channel's draws still follow the episode seed)."""
 
 
 @dataclass(frozen=True)

@@ -34,6 +34,8 @@ from openmulti_env.world.visibility import ObservableSurface
 from openmulti_env.world.world import World, WorldConfig
 
 CACHE_FORMAT = 1
+RECORDINGS_FOLDER = "recordings"
+"""The sub-folder of recorded episodes (``openmulti_env.environment.recorded_episode``), cleared with the worlds."""
 ENTRY_NAME = re.compile(r"[0-9a-f]{32}\.npz")
 """What an entry's file is called (``world_cache_key``): the only files clearing and trimming touch."""
 _KEYS = ("vertices", "faces", "face_colors", "face_instance_ids", "visible", "viewpoints", "path_lengths", "poses")
@@ -51,7 +53,7 @@ def world_cache_dir(cache_dir: str | Path | None = None) -> Path:
 def world_cache_key(scene: str, seed: int, config: WorldConfig) -> str:
     """A hex digest of everything that shapes the world's geometry."""
     parts = {"scene": scene, "seed": int(seed), "config": asdict(config), "format": CACHE_FORMAT,
-             "version": _package_version()}
+             "version": package_version()}
     path = Path(scene)
     if path.suffix.lower() in (".json", ".yaml", ".yml") and path.is_file():
         parts["manifest"] = _manifest_digest(path)
@@ -90,11 +92,11 @@ def cached_world(scene: str, seed: int, config: WorldConfig, cache_dir: str | Pa
 
 
 def clear_world_cache(cache_dir: str | Path | None = None) -> int:
-    """Delete every entry (files named as ``world_cache_key`` names them; nothing else in the folder);
-    returns the bytes freed."""
+    """Delete every entry (files named as ``world_cache_key`` names them) and every recorded episode (the
+    ``recordings`` sub-folder); nothing else in the folder. Returns the bytes freed."""
     folder = world_cache_dir(cache_dir)
     freed = 0
-    for path in cache_entries(folder):
+    for path in cache_entries(folder) + sorted((folder / RECORDINGS_FOLDER).glob("*.npz")):
         freed += path.stat().st_size
         path.unlink(missing_ok=True)
     return freed
@@ -169,7 +171,7 @@ def _manifest_digest(path: Path) -> str:
     return h.hexdigest()
 
 
-def _package_version() -> str:
+def package_version() -> str:
     try:
         return metadata.version("openmulti")
     except metadata.PackageNotFoundError:
