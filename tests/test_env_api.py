@@ -1,5 +1,5 @@
 """PettingZoo's own checks on the env, over a list of configurations (agents 2-6, both rewards, with and
-without a budget, presets rl_tiny and rl), plus pickling and the registry."""
+without a budget, presets rl_tiny and rl, real and recorded episodes), plus pickling and the registry."""
 
 from __future__ import annotations
 
@@ -24,9 +24,12 @@ CONFIGS = [
     dict(preset="rl", num_agents=4, max_cycles=2),
     dict(preset="rl_tiny", num_agents=3, action_form="instances", instance_slots=4, link_mb_per_round=0.1,
          link_range_m=3.0),
+    dict(preset="rl_tiny", num_agents=2, episode="recorded", recordings=1),
+    dict(preset="rl_tiny", num_agents=3, episode="recorded", recordings=2, action_form="instances", instance_slots=4,
+         link_mb_per_round=0.1, link_range_m=3.0, comm_budget_mb=0.5),
 ]
 IDS = ["rl_tiny-2", "rl_tiny-3-individual", "rl_tiny-4-budget", "rl_tiny-6-individual-budget", "rl-4",
-       "rl_tiny-3-instances-links"]
+       "rl_tiny-3-instances-links", "rl_tiny-2-recorded", "rl_tiny-3-recorded-instances-links-budget"]
 
 
 @pytest.fixture(params=CONFIGS, ids=IDS)

@@ -15,6 +15,7 @@ Stored as one ``.npz`` read with ``allow_pickle=False``; ``meta`` (JSON) names t
 from __future__ import annotations
 
 import json
+import zipfile
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -158,7 +159,7 @@ class Recording:
                 agents = [AgentRecording.from_arrays(data, f"a{i}_") for i in range(int(meta["agents"]))]
         except RecordingError:
             raise
-        except (OSError, ValueError, KeyError, EOFError, json.JSONDecodeError) as exc:
+        except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as exc:
             raise RecordingError(f"{path}: not a whole recording ({type(exc).__name__}: {exc})") from None
         if expected is not None:
             expected = json.loads(json.dumps(expected, sort_keys=True, default=str))  # as stored: tuples are lists
