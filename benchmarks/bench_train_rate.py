@@ -28,6 +28,9 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from studies.settings import parse_setting  # noqa: E402
+
 ROOT = Path(__file__).resolve().parents[1]
 TRAIN_SCENES = tuple(f"random:{k}" for k in range(100, 116))
 """``openmulti train``'s default worlds (``openmulti_env.runs.train.DEFAULT_TRAIN_SCENES``)."""
@@ -38,13 +41,15 @@ class RunSpec:
     label: str
     checkout: Path
     preset: str
+    """A preset with overrides, ``rl_lite,episode=recorded,recordings=2`` (``studies.settings``)."""
 
     @classmethod
     def parse(cls, text: str) -> "RunSpec":
         label, sep, rest = text.partition("=")
         checkout, sep2, preset = rest.rpartition(":")
         if not (sep and sep2 and label and preset):
-            raise SystemExit(f"--run {text!r}: expected LABEL=CHECKOUT:PRESET, e.g. head=.:rl_small")
+            raise SystemExit(f"--run {text!r}: expected LABEL=CHECKOUT:PRESET[,FIELD=VALUE...], e.g. head=.:rl_small "
+                             "or rec=.:rl_lite,episode=recorded,recordings=2")
         path = Path(checkout).resolve()
         if not (path / "openmulti_env").is_dir():
             raise SystemExit(f"--run {text!r}: {path} holds no openmulti_env package")
@@ -55,11 +60,16 @@ class RunSpec:
 
 
 def warm(spec: RunSpec) -> None:
-    """Build (or find cached) every training world with the checkout's own code; check it imports that code."""
+    """Build (or find cached) every training world with the checkout's own code, and with recorded episodes every
+    recording (made once, like the worlds: not what a training rate measures); check it imports that code."""
+    preset, overrides = parse_setting(spec.preset)
     code = ("import openmulti_env, sys; from openmulti_env import parallel_env\n"
             f"assert openmulti_env.__file__.startswith({str(spec.checkout)!r}), openmulti_env.__file__\n"
             f"for s in {list(TRAIN_SCENES)!r}:\n"
-            f"    e = parallel_env(preset={spec.preset!r}, scene=s); e.reset(seed=0); e.close()\n")
+            f"    e = parallel_env(preset={preset!r}, scene=s, **{overrides!r}); e.reset(seed=0)\n"
+            "    for k in range(e.config.env.recordings if e.recorded_episodes is not None else 0):\n"
+            "        e.recorded_episodes.recording(k)\n"
+            "    e.close()\n")
     start = time.perf_counter()
     subprocess.run([sys.executable, "-c", code], env=spec.environ(), check=True, cwd=spec.checkout,
                    stdout=subprocess.DEVNULL)
@@ -69,14 +79,22 @@ def warm(spec: RunSpec) -> None:
 def timed_run(spec: RunSpec, env_steps: int, workers: int, extra: list[str]) -> dict:
     """One whole ``openmulti train`` in a fresh folder: wall seconds and env steps per hour."""
     with tempfile.TemporaryDirectory(prefix="train_rate_") as out:
+        preset, overrides = parse_setting(spec.preset)
+        options = [x for k, v in overrides.items() for x in (f"--{k.replace('_', '-')}", str(v))]
         command = [sys.executable, "-c", "from openmulti_env.runs.cli import main; raise SystemExit(main())", "train",
-                   "--preset", spec.preset, "--env-steps", str(env_steps), "--workers", str(workers),
+                   "--preset", preset, *options, "--env-steps", str(env_steps), "--workers", str(workers),
                    "--out", out, *extra]
+        # a wrapper process waits for the run: its children's peak resident set is the largest process's of this run
+        peak = Path(out) / "peak_kb"
+        wrapper = [sys.executable, "-c", "import resource, subprocess, sys; code = subprocess.run(sys.argv[2:]).returncode; "
+                   "open(sys.argv[1], 'w').write(str(resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss)); "
+                   "raise SystemExit(code)", str(peak)]
         start = time.perf_counter()
-        done = subprocess.run(command, env=spec.environ(), cwd=spec.checkout, capture_output=True, text=True)
+        done = subprocess.run(wrapper + command, env=spec.environ(), cwd=spec.checkout, capture_output=True, text=True)
         wall = time.perf_counter() - start
         if done.returncode:
             raise SystemExit(f"{spec.label}: openmulti train failed ({done.returncode}):\n{done.stderr[-3000:]}")
+        peak_mb = int(peak.read_text()) / 1024 if peak.exists() else None
         log = Path(out) / "log.csv"
         episodes = max(0, len(log.read_text().splitlines()) - 1) if log.exists() else 0
         ran = steps_run(Path(out) / "latest.json")
@@ -84,7 +102,7 @@ def timed_run(spec: RunSpec, env_steps: int, workers: int, extra: list[str]) -> 
         raise SystemExit(f"{spec.label}: the run wrote no env step count in latest.json")
     return {"label": spec.label, "checkout": str(spec.checkout), "preset": spec.preset, "env_steps": env_steps,
             "env_steps_run": ran, "workers": workers, "episodes": episodes, "wall_s": wall,
-            "env_steps_per_hour": ran * 3600 / wall}
+            "env_steps_per_hour": ran * 3600 / wall, "peak_process_mb": peak_mb}
 
 
 def steps_run(policy_file: Path) -> int | None:
@@ -141,13 +159,18 @@ def main() -> None:
             with rows_file.open("a") as f:
                 f.write(json.dumps(row) + "\n")
             print(f"[bench_train_rate] {spec.label} ({spec.preset}) repeat {repeat}: {row['wall_s']:.0f} s, "
-                  f"{row['env_steps_per_hour']:.0f} env steps/h", flush=True)
+                  f"{row['env_steps_per_hour']:.0f} env steps/h, peak process {row['peak_process_mb'] or 0:.0f} MB",
+                  flush=True)
     ref = [r["env_steps_per_hour"] for r in rows if same(r, specs[0])]
-    print("| run | preset | env steps/h (each repeat) | ratio to " + specs[0].label + " |\n|---|---|---|---|")
+    print("| run | setting | env steps/h (each repeat) | ratio to " + specs[0].label + " | peak process MB |\n"
+          "|---|---|---|---|---|")
     for spec in specs:
-        rates = [r["env_steps_per_hour"] for r in rows if same(r, spec)]
+        mine = [r for r in rows if same(r, spec)]
+        rates = [r["env_steps_per_hour"] for r in mine]
+        peaks = [r["peak_process_mb"] for r in mine if r.get("peak_process_mb")]
         ratio = (sum(rates) / len(rates)) / (sum(ref) / len(ref)) if rates and ref else float("nan")
-        print(f"| {spec.label} | {spec.preset} | {' / '.join(f'{x:.0f}' for x in rates)} | {ratio:.2f} |")
+        print(f"| {spec.label} | {spec.preset} | {' / '.join(f'{x:.0f}' for x in rates)} | {ratio:.2f} | "
+              f"{max(peaks) if peaks else float('nan'):.0f} |")
 
 
 if __name__ == "__main__":

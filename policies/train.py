@@ -213,6 +213,7 @@ def export_network(model, network_config: dict):
 def train(env_factory: Callable[[int], object], config: TrainConfig, out: str | Path, training_record: dict,
           progress: bool = True) -> Path:
     """Train (or resume) in ``out``; returns the path of the best policy file (``out/best.json``)."""
+    import torch  # noqa: PLC0415
     from stable_baselines3 import PPO  # noqa: PLC0415
     from stable_baselines3.common.callbacks import BaseCallback  # noqa: PLC0415
     from stable_baselines3.common.utils import set_random_seed  # noqa: PLC0415
@@ -275,8 +276,19 @@ def train(env_factory: Callable[[int], object], config: TrainConfig, out: str | 
     from policies.board import TrainingBoard  # noqa: PLC0415
 
     board = TrainingBoard(out / "tensorboard", model, len(log.rows)) if config.tensorboard else None
+    learner_threads = torch.get_num_threads()
 
     class Logging(BaseCallback):
+        """Logs each step's episodes; the learner's torch threads follow the phase: one while collecting (a batch
+        of a few observations a step, the env workers busy on the cores: a second thread waiting on a busy core made
+        each forward pass 30x slower here), the cores while updating (the workers idle)."""
+
+        def _on_rollout_start(self) -> None:
+            torch.set_num_threads(1)
+
+        def _on_rollout_end(self) -> None:
+            torch.set_num_threads(learner_threads)
+
         def _on_step(self) -> bool:
             log.step(np.asarray(self.locals["rewards"], float), np.asarray(self.locals["dones"]),
                      list(self.locals["infos"]), self.num_timesteps // entries_per_world)

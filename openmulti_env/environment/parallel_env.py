@@ -231,7 +231,10 @@ class OpenMultiParallelEnv(ParallelEnv, EzPickle):
     def _new_team(self, episode_seed: int):
         """The episode's team: the real mapper, or with ``episode="recorded"`` a ``RecordedTeam``."""
         if self._recorded is not None:
-            return self._recorded.team(episode_seed)
+            team = self._recorded.team(episode_seed)
+            if self._recorded.complete:  # every recording made: the rendered frames are not read again
+                self._frames.clear()
+            return team
         return self._real_team(episode_seed)
 
     def _real_team(self, episode_seed: int) -> Team:

@@ -77,6 +77,11 @@ class RecordedEpisodes:
         index = int(episode_seed) % self.tree.env.recordings
         return RecordedTeam(self.recording(index), self.tree.team, self.tree.channel, seed=episode_seed)
 
+    @property
+    def complete(self) -> bool:
+        """Every recording of the world is in memory: the real team (renderer, encoders) is not needed again."""
+        return len(self.memory) == self.tree.env.recordings
+
     def recording(self, index: int) -> Recording:
         if index in self.memory:
             return self.memory[index]

@@ -30,7 +30,8 @@ RUN_SHORT = ("scene", "agents", "policy", "seed", "out", "device", "threads", "w
              "no_evaluation", "data", "kind", "gt_mesh", "frames", "intrinsics", "depth_scale", "segmenter",
              "holdout_every")
 """The short spellings ``openmulti run`` offers besides every ``--node.field`` (the README's)."""
-TRAIN_SHORT = ("agents", "reward", "reward_baseline", "comm_cost_of_always", "comm_cost_per_mb", "comm_budget_mb", "horizon", "link_range_m", "link_mb_per_round")
+TRAIN_SHORT = ("agents", "reward", "reward_baseline", "comm_cost_of_always", "comm_cost_per_mb", "comm_budget_mb", "horizon",
+               "link_range_m", "link_mb_per_round", "episode", "recordings")
 """The short spellings of the env's settings ``openmulti train`` offers."""
 RUN_HELP = """Every setting of a run is one configuration tree (a preset plus these options); the run writes it
 whole as OUT/config.yaml, and `openmulti run --config OUT/config.yaml --out NEW` repeats the run. Each field

@@ -26,7 +26,9 @@ DEFAULT_TRAIN_SCENES = tuple(f"random:{k}" for k in range(100, 116))
 
 class WorldCycle(ParallelEnv):
     """The env on ``scenes[(start + k) % len(scenes)]`` for its k-th block of ``episodes_per_world`` episodes
-    (the same spaces throughout: one preset, one team size)."""
+    (the same spaces throughout: one preset, one team size). With recorded episodes every world's env is kept
+    (a recorded env holds its probes and recordings, a few MB, and builds in seconds: rebuilt at every change of
+    world it cost more than its episodes); a real env is closed when the cycle moves on."""
 
     metadata = OpenMultiParallelEnv.metadata
 
@@ -43,6 +45,7 @@ class WorldCycle(ParallelEnv):
         self.stepped = False  # a reset counts an episode only when steps came before it
         self.summary = {"episode_completion": float("nan"), "episode_mb": float("nan")}
         self.env = OpenMultiParallelEnv(scene=self.scenes[self.start % len(self.scenes)], **env_kwargs)
+        self.kept: dict[str, OpenMultiParallelEnv] = {}
         self.possible_agents = list(self.env.possible_agents)
         first = self.possible_agents[0]
         self.spaces = self.env.observation_space(first), self.env.action_space(first)  # kept: the same objects
@@ -73,8 +76,11 @@ class WorldCycle(ParallelEnv):
         block = self.episodes // self.episodes_per_world
         scene = self.scenes[(self.start + block) % len(self.scenes)]
         if scene != self.env.config.scene:
-            self.env.close()
-            self.env = OpenMultiParallelEnv(scene=scene, **self.env_kwargs)
+            if self.env.config.env.episode == "recorded":
+                self.kept[self.env.config.scene] = self.env
+            else:
+                self.env.close()
+            self.env = self.kept.pop(scene, None) or OpenMultiParallelEnv(scene=scene, **self.env_kwargs)
         if self.episode_seeds is not None:  # the k-th episode on this world (over every visit), seeds 0..K-1 in turn
             visit = (self.start + block) // len(self.scenes)  # rises by one per visit of this world (offset by start)
             seed = (visit * self.episodes_per_world + self.episodes % self.episodes_per_world) % self.episode_seeds
@@ -102,7 +108,8 @@ class WorldCycle(ParallelEnv):
         return self.env.state()
 
     def close(self) -> None:
-        self.env.close()
+        for env in [self.env, *self.kept.values()]:
+            env.close()
 
 
 @dataclass(frozen=True)

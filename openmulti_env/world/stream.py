@@ -39,6 +39,10 @@ class RenderCache:
                 self._frames[key], self.bytes = frame, self.bytes + size
         return frame
 
+    def clear(self) -> None:
+        """Forget every kept frame (an env whose episodes no longer render, e.g. recorded ones)."""
+        self._frames, self.bytes = {}, 0
+
 
 class WorldStream:
     """Agent ``agent``'s path through ``world``; the last ``cache`` frames are kept (a ray message
