@@ -5,8 +5,8 @@ each schedule is played twice from that seed, on the real team and on the ``Reco
 (``environment.rewards.play_fixed``: the reward's probes after every round), and a row keeps both final
 completions (team mean, percent), both MB and the seconds each took. With the same seed both sides draw the same
 channel, so what differs is the model (``mapping.team.recorded``): how far its completion is from the real one,
-and whether it ranks the schedules as the real one does. ``--share`` sets the modelled consistency gain of a
-matched copy (``RecordedTeam(consistency_share=...)``) to fit it on validation cells.
+and whether it ranks the schedules as the real one does. ``--shares`` sets the share of an adopted copy's probes beyond
+the receiver's own that count (``RecordedTeam(copy_share=...)``), to fit it on validation cells.
 
     .venv/bin/python -m studies.recorded_check --setting rl_lite --cells room0:6 office0:6
     .venv/bin/python -m studies.recorded_check --report

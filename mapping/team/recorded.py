@@ -10,10 +10,11 @@ from which round, what each sender knows of it (``LinkState``, ``InstanceOnLink`
 
 Modelled (the model, fitted and checked in docs/transfer.md):
 - a receiver's map is its own instances plus every copy it adopted, each as the sender's instance was in the
-  round of its last copy (its probes and columns); a copy is adopted or matched as the receiver's alignment
-  decided in the recording for the round it first arrived, and a matched copy adds the share
-  ``consistency_share`` of the probes it covers and the matched own instance misses (parameter consistency,
-  eq. 12, pulls the two together);
+  round of its last copy (its columns, and the share ``copy_share`` of the probes it covers beyond the receiver's
+  own: a copy is aligned into another map and pulled by eq. 12, and reproduces less there than where it was
+  trained); a copy is adopted or matched as the receiver's alignment decided in the recording for the round it
+  first arrived, and a matched copy adds nothing (what parameter consistency, eq. 12, moves between two maps of
+  one object is not modelled);
 - ray messages move positions (``peer_poses``) and cost bytes; render consistency (eq. 13) adds nothing;
 - DSGD's listings, point-cloud messages and forwarding adopted copies are not modelled (refused).
 """
@@ -34,9 +35,9 @@ from mapping.team.recording import ADOPT, AgentRecording, Recording
 from mapping.team.report import (AgentSnapshot, AlignmentCounts, ConsistencyTerms, DeliveryRecord, InstanceOnLink,
                                  LinkState, LossTerms, PeerKnowledge, RoundReport, priority_order)
 
-CONSISTENCY_SHARE = 0.0
-"""Share of the probes a matched copy covers and its own instance misses that the receiver gains (fitted in
-docs/transfer.md)."""
+COPY_SHARE = 1.0
+"""Share of the probes an adopted copy covers beyond the receiver's own map that it reproduces there (a fixed
+pseudo-random subset of the probes; fitted on validation worlds in docs/recorded.md)."""
 
 
 @dataclass(frozen=True)
@@ -55,7 +56,7 @@ class RecordedTeam:
     ``TeamConfig`` (its exchange settings price messages), ``seed`` the episode's (the success draws)."""
 
     def __init__(self, recording: Recording, config, channel: ChannelConfig = ChannelConfig(), seed: int = 0,
-                 consistency_share: float = CONSISTENCY_SHARE):
+                 copy_share: float = COPY_SHARE):
         ex = config.exchange
         if config.consistency.algorithm in ("dinno", "dsgd") or ex.forward_adopted or ex.point_clouds:
             raise ValueError("a recorded episode models parameter consensus only: consistency "
@@ -64,7 +65,9 @@ class RecordedTeam:
         self.recording, self.config, self.channel_config = recording, config, channel
         self.agents: list[AgentRecording] = recording.agents
         n = len(self.agents)
-        self.num_agents, self.seed, self.share = n, int(seed), float(consistency_share)
+        if not 0.0 <= copy_share <= 1.0:
+            raise ValueError(f"copy_share must be in [0, 1], got {copy_share}")
+        self.num_agents, self.seed, self.share = n, int(seed), float(copy_share)
         self.success = np.broadcast_to(np.asarray(channel.success_matrix(n), float), (n, n))
         self.budget = channel.budget_bytes
         self.rng = np.random.default_rng(zlib.crc32(f"channel-{seed}".encode()))
@@ -271,19 +274,12 @@ class RecordedTeam:
         if rt < 0:
             return covered
         r = min(rt, a.rounds - 1)
-        own = {}
         for m in np.flatnonzero(a.live[r]):
-            own[int(a.ids[m])] = a.covered(r, m)
-            covered |= own[int(a.ids[m])]
+            covered |= a.covered(r, m)
+        copies = np.zeros(a.probes, bool)
         for j, m, c in self._adopted(i):
-            covered |= self.agents[j].covered(c, m)
-        if self.share > 0:
-            for j, table in self.held[i].items():
-                for iid, c in table.items():
-                    mine = self.decision[i][j].get(iid)
-                    if mine is not None and mine != ADOPT and mine in own:
-                        covered |= self.agents[j].covered(c, self.index[j][iid]) & ~own[mine] & self.lucky
-        return covered
+            copies |= self.agents[j].covered(c, m)
+        return covered | (copies & self.lucky)
 
     def _columns(self, i: int, rt: int) -> ColumnMap | None:
         if rt < 0:
@@ -342,4 +338,4 @@ class RecordedTeam:
             map_bytes=sum(vector_wire_bytes(ex, int(a.nparams[r, self.index[i][iid]]), False) for iid in live))
 
 
-__all__ = ["CONSISTENCY_SHARE", "RecordedFrame", "RecordedTeam"]
+__all__ = ["COPY_SHARE", "RecordedFrame", "RecordedTeam"]
