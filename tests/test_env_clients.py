@@ -31,12 +31,13 @@ def test_supersuit_and_stable_baselines3_ppo_train_on_tiny(cache):
     assert actions.shape == (2, 2)
 
 
-def test_torchrl_wrapper_passes_check_env_specs(cache):
+@pytest.mark.parametrize("episode", ["real", "recorded"])
+def test_torchrl_wrapper_passes_check_env_specs(cache, episode):
     pytest.importorskip("torchrl")
     from torchrl.envs.libs.pettingzoo import PettingZooWrapper
     from torchrl.envs.utils import check_env_specs
 
-    wrapped = PettingZooWrapper(parallel_env(preset="rl_tiny", cache_dir=cache), seed=0)
+    wrapped = PettingZooWrapper(parallel_env(preset="rl_tiny", cache_dir=cache, episode=episode, recordings=1), seed=0)
     check_env_specs(wrapped)
     rollout = wrapped.rollout(3)
     assert rollout["agent", "observation", "map"].shape[-3:] == (48, 48, 6)
@@ -47,13 +48,13 @@ def test_torchrl_wrapper_passes_check_env_specs(cache):
 class _RecordingFactory:
     """``env_factory(i)`` of the real env that remembers which world indices it was asked for."""
 
-    def __init__(self, cache: str, odd_agents: int | None = None):
-        self.cache, self.odd_agents, self.made = cache, odd_agents, []
+    def __init__(self, cache: str, odd_agents: int | None = None, **env_kwargs):
+        self.cache, self.odd_agents, self.made, self.env_kwargs = cache, odd_agents, [], env_kwargs
 
     def __call__(self, index: int):
         self.made.append(index)
         agents = self.odd_agents if self.odd_agents and index % 2 else 2
-        return parallel_env(preset="rl_tiny", num_agents=agents, cache_dir=self.cache)
+        return parallel_env(preset="rl_tiny", num_agents=agents, cache_dir=self.cache, **self.env_kwargs)
 
 
 def test_several_worlds_step_in_one_process_and_bad_sizes_are_named(cache):
@@ -78,3 +79,23 @@ def test_several_worlds_step_in_one_process_and_bad_sizes_are_named(cache):
         check_vector_size(1, 0)
     with pytest.raises(ValueError, match="more worker processes than this machine's 2 cores.*--worlds-per-worker 2"):
         check_vector_size(4, 1, cores=2)
+
+
+def test_many_recorded_worlds_step_in_one_process(cache):
+    """Recorded episodes are light: four worlds (two recordings, two episode seeds each) step side by side in one
+    SuperSuit vector env, through whole episodes and resets."""
+    pytest.importorskip("supersuit")
+    pytest.importorskip("stable_baselines3")
+    from policies.sb3_vec import sb3_vec_env_from_factory
+
+    factory = _RecordingFactory(cache, episode="recorded", recordings=2)
+    vec, num_agents = sb3_vec_env_from_factory(factory, workers=1, seed=3, worlds_per_worker=4)
+    assert num_agents == 2 and vec.num_envs == 8
+    vec.reset()
+    finished = 0
+    for _ in range(20):  # rl_tiny episodes are 8 steps: every world ends and resets at least twice
+        _, rewards, dones, infos = vec.step(np.ones((8, 2), np.int8))
+        finished += int(dones.sum())
+        assert np.all(np.isfinite(rewards)) and all(i["bytes_sent"] >= 0 for i in infos)
+    assert finished >= 16
+    vec.close()
