@@ -38,6 +38,7 @@ def play_cell(setting: str, cell: str, shares: list[float], rows_file: Path, cac
     from mapping.team.recorded import RecordedTeam  # noqa: PLC0415
     from openmulti_env import parallel_env  # noqa: PLC0415
     from openmulti_env.environment.rewards import play_fixed  # noqa: PLC0415
+    from openmulti_env.runs.made_at import made_at  # noqa: PLC0415
 
     done = {(r["setting"], r["cell"], r["scenario"], r["schedule"], r["share"]) for r in read_rows(rows_file)}
     preset, overrides = parse_setting(setting)
@@ -70,7 +71,7 @@ def play_cell(setting: str, cell: str, shares: list[float], rows_file: Path, cac
                        "real": 100 * float(real[0][-1].mean()), "recorded": 100 * float(model[0][-1].mean()),
                        "real_mb": float(real[1].sum()), "recorded_mb": float(model[1].sum()),
                        "real_s": real_s, "recorded_s": time.perf_counter() - start,
-                       "record_s": episodes.record_s, "episode_seed": seed}
+                       "record_s": episodes.record_s, "episode_seed": seed, "made_at": made_at()}
                 append_row(rows_file, row)
                 print(f"[recorded] {cell} {scenario} {schedule} share {share}: real {row['real']:.2f} % "
                       f"{row['real_mb']:.1f} MB ({real_s:.0f} s), recorded {row['recorded']:.2f} % "
