@@ -31,6 +31,9 @@ SCHEDULES = ("never", "always", "every:2", "every:3", "every:4", "rate:0.25", "r
 SCENARIOS = {"unlimited": {}, "range": {"link_range_m": 2.0}, "capacity": {"link_mb_per_round": 0.25}}
 """The link-limited scenarios play ``LIMITED`` schedules (the fast runs' range and capacity, studies.fast_runs)."""
 LIMITED = ("always", "every:2", "rate:0.5")
+MODEL = 2
+"""The version of the recorded episode's model a row was played with (1: every copy aligned against the
+receiver's own instances only; 2: a copy matched to one adopted from a third agent is not adopted again)."""
 
 
 def play_cell(setting: str, cell: str, shares: list[float], rows_file: Path, cache_dir: str | None) -> None:
@@ -40,7 +43,8 @@ def play_cell(setting: str, cell: str, shares: list[float], rows_file: Path, cac
     from openmulti_env.environment.rewards import play_fixed  # noqa: PLC0415
     from openmulti_env.runs.made_at import made_at  # noqa: PLC0415
 
-    done = {(r["setting"], r["cell"], r["scenario"], r["schedule"], r["share"]) for r in read_rows(rows_file)}
+    done = {(r["setting"], r["cell"], r["scenario"], r["schedule"], r["share"]) for r in read_rows(rows_file)
+            if r.get("model", 1) == MODEL}
     preset, overrides = parse_setting(setting)
     scene, world_seed = parse_cell(cell)
     for scenario, links in SCENARIOS.items():
@@ -71,7 +75,7 @@ def play_cell(setting: str, cell: str, shares: list[float], rows_file: Path, cac
                        "real": 100 * float(real[0][-1].mean()), "recorded": 100 * float(model[0][-1].mean()),
                        "real_mb": float(real[1].sum()), "recorded_mb": float(model[1].sum()),
                        "real_s": real_s, "recorded_s": time.perf_counter() - start,
-                       "record_s": episodes.record_s, "episode_seed": seed, "made_at": made_at()}
+                       "record_s": episodes.record_s, "episode_seed": seed, "made_at": made_at(), "model": MODEL}
                 append_row(rows_file, row)
                 print(f"[recorded] {cell} {scenario} {schedule} share {share}: real {row['real']:.2f} % "
                       f"{row['real_mb']:.1f} MB ({real_s:.0f} s), recorded {row['recorded']:.2f} % "
@@ -79,12 +83,13 @@ def play_cell(setting: str, cell: str, shares: list[float], rows_file: Path, cac
         env.close()
 
 
-def summary(rows: list[dict], setting: str, share: float) -> list[dict]:
+def summary(rows: list[dict], setting: str, share: float, model: int = MODEL) -> list[dict]:
     """Per cell: completion error (recorded - real, points) mean and largest, MB ratio, Spearman over every
     (scenario, schedule) point, and the share of pairs the real side separates by > 2 points ranked alike."""
     out = []
     for cell in sorted({r["cell"] for r in rows if r["setting"] == setting}):
-        mine = [r for r in rows if r["setting"] == setting and r["cell"] == cell and r["share"] == share]
+        mine = [r for r in rows if r["setting"] == setting and r["cell"] == cell and r["share"] == share
+                and r.get("model", 1) == model]
         if len(mine) < 3:
             continue
         real = np.array([r["real"] for r in mine])
@@ -115,9 +120,10 @@ def main() -> None:
         for cell in args.cells:
             play_cell(args.setting, cell, args.shares, rows_file, args.cache_dir)
     rows = read_rows(rows_file)
-    for share in sorted({r["share"] for r in rows if r["setting"] == args.setting}):
-        for s in summary(rows, args.setting, share):
-            print(f"share {share}: {s}")
+    for model in sorted({r.get("model", 1) for r in rows}):
+        for share in sorted({r["share"] for r in rows if r["setting"] == args.setting}):
+            for s in summary(rows, args.setting, share, model):
+                print(f"model {model}, share {share}: {s}")
 
 
 if __name__ == "__main__":
