@@ -38,6 +38,8 @@ from studies.settings import parse_setting
 POLICIES = ("always", "never", "every:2", "every:3", "every:4", "rate:0.25", "rate:0.5", "novelty",
             "instance_novelty")
 """The issue's eight plus the instance-level heuristic."""
+SEPARATED = 2.0
+"""Points by which the reference must separate two schedules for their order to count in the pair agreement."""
 
 
 def cheap_episodes(setting: str, policies: list[str], rows_file: Path) -> list[dict]:
@@ -100,8 +102,11 @@ def rank_agreement(cheap: list[dict], fast: list[dict], setting: str, against: s
             {r["policy"]: r["completion"] for r in cheap if (r["setting"], r["scene"], r["seed"]) == (against, scene, seed)}
         both = [p for p in c if p in f]
         rho = float(spearmanr([c[p] for p in both], [f[p] for p in both]).statistic) if len(both) >= 3 else None
+        pairs = [(a, b) for k, a in enumerate(both) for b in both[k + 1:] if abs(f[a] - f[b]) > SEPARATED]
+        agree = [np.sign(c[a] - c[b]) == np.sign(f[a] - f[b]) for a, b in pairs]
         out.append({"scene": scene, "seed": seed, "policies": both, "cheap": [c[p] for p in both],
-                    "fast": [f[p] for p in both], "spearman": rho})
+                    "fast": [f[p] for p in both], "spearman": rho, "pairs": len(pairs),
+                    "agree": float(np.mean(agree)) if agree else None})
     return out
 
 
@@ -116,11 +121,16 @@ def report(cells: list[dict], setting: str, out: Path, against: str | None = Non
     rhos = [c["spearman"] for c in cells if c["spearman"] is not None and np.isfinite(c["spearman"])]
     other = "`fast` (mesh metric)" if against is None else f"the cheap episode `{against}`"
     lines = [f"Cheap episode `{setting}` against {other}, unlimited links.", "",
-             "| cell | schedules on both sides | Spearman |", "|---|---|---|"]
+             f"| cell | schedules on both sides | Spearman | pairs the reference separates by > {SEPARATED:g} points: "
+             "ordered alike |", "|---|---|---|---|"]
     for c in cells:
         rho = "-" if c["spearman"] is None else f"{c['spearman']:.2f}"
-        lines.append(f"| {c['scene']} s{c['seed']} | {len(c['policies'])} ({', '.join(c['policies'])}) | {rho} |")
-    lines.append(f"| mean over {len(rhos)} cell(s) | | {np.mean(rhos):.2f} |" if rhos else "| mean | | - |")
+        agree = "-" if c["agree"] is None else f"{c['pairs']}: {100 * c['agree']:.0f} %"
+        lines.append(f"| {c['scene']} s{c['seed']} | {len(c['policies'])} ({', '.join(c['policies'])}) | {rho} | {agree} |")
+    pairs = sum(c["pairs"] for c in cells)
+    agreed = sum(c["pairs"] * c["agree"] for c in cells if c["agree"] is not None)
+    total = f"{pairs}: {100 * agreed / pairs:.0f} %" if pairs else "-"
+    lines.append(f"| mean over {len(rhos)} cell(s) | | {np.mean(rhos):.2f} | {total} |" if rhos else "| mean | | - | - |")
     fig, axes = plt.subplots(1, len(cells), figsize=(5 * len(cells), 4.2), squeeze=False)
     for ax, c in zip(axes[0], cells):
         # `never` lies 50-60 points under the rest on both sides: said in a corner, not drawn, so the schedules

@@ -13,9 +13,8 @@ Modelled (the model, fitted and checked in docs/transfer.md):
   round of its last copy (its columns, and the share ``copy_share`` of the probes it covers beyond the receiver's
   own: a copy is aligned into another map and pulled by eq. 12, and reproduces less there than where it was
   trained); a copy is adopted or matched as the receiver's alignment decided in the recording for the round it
-  first arrived, or, when it matches a copy the receiver adopted from a third agent (that agent's alignment of the
-  two in the recording), held without being adopted again; a matched copy adds nothing (what parameter
-  consistency, eq. 12, moves between two maps of one object is not modelled);
+  first arrived, and a matched copy adds nothing (what parameter consistency, eq. 12, moves between two maps of
+  one object is not modelled);
 - ray messages move positions (``peer_poses``) and cost bytes; render consistency (eq. 13) adds nothing;
 - DSGD's listings, point-cloud messages and forwarding adopted copies are not modelled (refused).
 """
@@ -36,9 +35,6 @@ from mapping.team.recording import ADOPT, AgentRecording, Recording
 from mapping.team.report import (AgentSnapshot, AlignmentCounts, ConsistencyTerms, DeliveryRecord, InstanceOnLink,
                                  LinkState, LossTerms, PeerKnowledge, RoundReport, priority_order)
 
-COPY_MATCHED = -3
-"""A receiver's decision on a copy its alignment matched to a copy it had adopted from a third agent (the real
-receiver's fusion holds that adopted instance, so the arrival is matched, not adopted twice)."""
 COPY_SHARE = 1.0
 """Share of the probes an adopted copy covers beyond the receiver's own map that it reproduces there (a fixed
 pseudo-random subset of the probes; fitted on validation worlds in docs/recorded.md)."""
@@ -88,7 +84,6 @@ class RecordedTeam:
         self.index = [{int(iid): m for m, iid in enumerate(a.ids)} for a in self.agents]
         self.born = [self._born(a) for a in self.agents]
         self._new_frames: list[tuple] = [()] * n
-        self._columns_of: dict[tuple[int, int], dict[int, int]] = {}
         probes = self.agents[0].probes
         self.lucky = (np.random.default_rng(7).random(probes) < self.share) if probes else np.zeros(0, bool)
 
@@ -238,17 +233,15 @@ class RecordedTeam:
         return header + sum(sizes.values()), sorted(sizes)
 
     def _deliver_params(self, i: int, j: int, rt: int, t: int, ids: list[int], counts: AlignmentCounts) -> None:
-        """i's parameters for ``ids`` reached j: j holds them (first arrivals aligned), i books what it sent."""
         a = self.agents[i]
+        table = self.agents[j].matches.get(i)
+        column = {int(pid): k for k, pid in enumerate(table[0])} if table is not None else {}
         for iid in ids:
             if iid not in self.decision[j][i]:
-                decided = self._aligned(j, i, iid, rt)
-                if decided == ADOPT:  # matched to a copy j adopted from a third agent: held, not adopted again
-                    decided = next((COPY_MATCHED for k, table in self.held[j].items() if k != i for qid in table
-                                    if self.decision[j][k].get(qid) == ADOPT and self._aligned(k, i, iid, rt) == qid),
-                                   ADOPT)
-                self.decision[j][i][iid] = decided
-                if decided == ADOPT:
+                k = column.get(iid)
+                decided = int(table[1 + rt, k]) if k is not None else ADOPT
+                self.decision[j][i][iid] = ADOPT if decided < 0 else decided
+                if decided < 0:
                     counts.adopted += 1
                 else:
                     counts.matched += 1
@@ -258,17 +251,6 @@ class RecordedTeam:
                 self.config.exchange.resend_cloud_growth * self.cloud_sent[i][j][iid] else self.cloud_sent[i][j][iid]
         self.delivered_round[i]["params"][j] = t
         self.params_round[j][i] = t
-
-    def _aligned(self, receiver: int, sender: int, iid: int, rt: int) -> int:
-        """The receiver's own instance its alignment matched the sender's ``iid`` to in round ``rt`` of the
-        recording (``ADOPT``: none)."""
-        table = self.agents[receiver].matches.get(sender)
-        if table is None:
-            return ADOPT
-        column = self._columns_of.setdefault((receiver, sender), {int(pid): k for k, pid in enumerate(table[0])})
-        k = column.get(iid)
-        decided = int(table[1 + rt, k]) if k is not None else ADOPT
-        return ADOPT if decided < 0 else decided
 
     # ---- what each agent holds and knows ---------------------------------------------------------------
     def _change(self, i: int, m: int, copy_round: int, rt: int) -> float:
@@ -337,7 +319,7 @@ class RecordedTeam:
                                  change=float(np.mean(changes)) if changes else 0.0,
                                  params_round=self.delivered_round[i]["params"].get(j),
                                  rays_round=self.delivered_round[i]["rays"].get(j), bytes_sent=int(self.link_bytes[i, j]))
-            shared = {own for own in self.decision[i][j].values() if own >= 0}
+            shared = {own for own in self.decision[i][j].values() if own != ADOPT}
             items = []
             for iid, change in zip(live, changes):
                 m = self.index[i][iid]
