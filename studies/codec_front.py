@@ -141,6 +141,7 @@ def plot(rows: list[dict], path: Path) -> None:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt  # noqa: PLC0415
+    from matplotlib.ticker import FormatStrFormatter, LogLocator, NullFormatter  # noqa: PLC0415
 
     cells = sorted({(r["scene"], r["seed"]) for r in rows})
     fig, axes = plt.subplots(1, len(cells), figsize=(5 * len(cells), 4), squeeze=False)
@@ -156,7 +157,10 @@ def plot(rows: list[dict], path: Path) -> None:
                 ax.annotate(r["setting"], (r["mb"], r["comp_ratio"]), fontsize=7, xytext=(3, 3),
                             textcoords="offset points")
         ax.set_xscale("log")
-        ax.set_xlabel("MB sent by the team")
+        ax.xaxis.set_major_locator(LogLocator(subs=(1.0, 2.0, 5.0)))  # 10, 20, 50, 100, ... MB written out
+        ax.xaxis.set_major_formatter(FormatStrFormatter("%g"))
+        ax.xaxis.set_minor_formatter(NullFormatter())
+        ax.set_xlabel("MB sent by the team (log scale)")
         ax.set_ylabel("completion ratio %")
         ax.set_title(f"{cell[0]} seed {cell[1]} (fast)")
         ax.grid(alpha=0.3)
