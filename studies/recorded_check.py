@@ -31,11 +31,13 @@ SCHEDULES = ("never", "always", "every:2", "every:3", "every:4", "rate:0.25", "r
 SCENARIOS = {"unlimited": {}, "range": {"link_range_m": 2.0}, "capacity": {"link_mb_per_round": 0.25}}
 """The link-limited scenarios play ``LIMITED`` schedules (the fast runs' range and capacity, studies.fast_runs)."""
 LIMITED = ("always", "every:2", "rate:0.5")
-MODEL = 1
-"""The version of the recorded episode's model a row was played with. 1 (the model in force): every copy aligned
-against the receiver's own instances only. 2 (e1131f5, tried and not kept: 2.15 points mean absolute error and
-0.89 mean Spearman on the validation worlds against 1.81 and 0.90): a copy matched to one adopted from a third
-agent is not adopted again."""
+MODEL = 3
+"""The version of the recorded episode's model a row was played with. 3 (in force): 1 with a review's fixes (a
+match to an instance its mapper does not hold adopts the copy, a copy without a cloud is held unaligned, live
+instances without keyframe pixels count in the map, ray positions drawn with the real message seed, float32
+storage). 1: every copy aligned against the receiver's own instances only. 2 (e1131f5, tried and not kept: 2.15
+points mean absolute error and 0.89 mean Spearman on the validation worlds against 1.81 and 0.90): a copy matched
+to one adopted from a third agent is not adopted again."""
 
 
 def play_cell(setting: str, cell: str, shares: list[float], rows_file: Path, cache_dir: str | None) -> None:

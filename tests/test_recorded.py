@@ -140,3 +140,53 @@ def test_recorded_and_real_rank_schedules_alike_on_a_tiny_world(recorded):
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         recorded.reset(seed=5)  # a cached recording reads back without warnings
+
+
+def test_never_observations_replay_the_real_ones_bit_for_bit(recorded):
+    """Every observation of a `never` episode (reset and each round): map planes from the recorded columns, frames'
+    cells and poses, comm and links from the recorded snapshots, equal to the real team's."""
+    from mapping.team.plan import RoundPlan
+    from openmulti_env.environment.observation import team_observer
+
+    episodes, tree = recorded.recorded_episodes, recorded.config
+    recording = episodes.recording(0)
+    seed, n = int(recording.meta["episode_seed"]), tree.num_agents
+    size = np.asarray(recorded.world.scene.size_m, float)
+
+    def observations(team):
+        observer = team_observer(tree, size, tree.env.action_form)
+        observer.reset(n)
+        seen = [[observer.observe(s) for s in team.snapshots()]]
+        while not team.done:
+            report = team.round(RoundPlan.never(n))
+            observer.update(team, report.agents)
+            seen.append([observer.observe(s) for s in report.agents])
+        return seen
+
+    real, model = observations(episodes.real_team(seed)), observations(RecordedTeam(recording, tree.team, tree.channel, seed))
+    assert len(real) == len(model) == recording.rounds + 1
+    for step, (a, b) in enumerate(zip(real, model)):
+        for agent, (x, y) in enumerate(zip(a, b)):
+            for key in x:
+                np.testing.assert_array_equal(x[key], y[key], err_msg=f"step {step} agent {agent} {key}")
+
+
+def test_ray_messages_tell_the_real_positions_and_cost_the_real_bytes(recorded):
+    """Rays only (no parameters): where each receiver believes its peers are and every byte, round by round, as the
+    real team (the pose draw replayed with the real message seed)."""
+    from mapping.team.plan import RoundPlan
+
+    episodes, tree = recorded.recorded_episodes, recorded.config
+    recording = episodes.recording(0)
+    seed, n = int(recording.meta["episode_seed"]), tree.num_agents
+    rays = RoundPlan(np.zeros((n, n), bool), ~np.eye(n, dtype=bool))
+    real, model = episodes.real_team(seed), RecordedTeam(recording, tree.team, tree.channel, seed)
+    while not real.done:
+        a, b = real.round(rays), model.round(rays)
+        assert a.bytes_sent == b.bytes_sent
+        for x, y in zip(a.agents, b.agents):
+            assert x.peers.keys() == y.peers.keys()
+            for j in x.peers:
+                assert x.peers[j].position[0] == y.peers[j].position[0]
+                np.testing.assert_allclose(x.peers[j].position[1], y.peers[j].position[1], atol=1e-9)
+    real.release()

@@ -31,7 +31,7 @@ from mapping.team.channel import DELIVERED, DROPPED, OVER_BUDGET
 from mapping.team.codec import vector_wire_bytes
 from mapping.team.links import LinkLimits, round_limits
 from mapping.team.plan import ChannelConfig, RoundPlan
-from mapping.team.recording import ADOPT, AgentRecording, Recording
+from mapping.team.recording import ADOPT, UNALIGNED, AgentRecording, Recording
 from mapping.team.report import (AgentSnapshot, AlignmentCounts, ConsistencyTerms, DeliveryRecord, InstanceOnLink,
                                  LinkState, LossTerms, PeerKnowledge, RoundReport, priority_order)
 
@@ -58,10 +58,11 @@ class RecordedTeam:
     def __init__(self, recording: Recording, config, channel: ChannelConfig = ChannelConfig(), seed: int = 0,
                  copy_share: float = COPY_SHARE):
         ex = config.exchange
-        if config.consistency.algorithm in ("dinno", "dsgd") or ex.forward_adopted or ex.point_clouds:
-            raise ValueError("a recorded episode models parameter consensus only: consistency "
+        if config.consistency.algorithm in ("dinno", "dsgd") or ex.forward_adopted or ex.point_clouds or config.global_map:
+            raise ValueError("a recorded episode models instance maps under parameter consensus only: consistency "
                              f"{config.consistency.algorithm!r}, forward_adopted={ex.forward_adopted}, "
-                             f"point_clouds={ex.point_clouds} are not modelled; play the real episode")
+                             f"point_clouds={ex.point_clouds}, global_map={config.global_map} are not modelled; play "
+                             "the real episode")
         self.recording, self.config, self.channel_config = recording, config, channel
         self.agents: list[AgentRecording] = recording.agents
         n = len(self.agents)
@@ -89,8 +90,9 @@ class RecordedTeam:
 
     @staticmethod
     def _born(a: AgentRecording) -> dict[int, int]:
-        live = a.live
-        return {int(iid): int(np.argmax(live[:, m])) + 1 for m, iid in enumerate(a.ids) if live[:, m].any()}
+        """Own id -> the first snapshot's round count that showed it shareable (``TeamMember.born_round``)."""
+        seen = a.shareable
+        return {int(iid): int(np.argmax(seen[:, m])) + 1 for m, iid in enumerate(a.ids) if seen[:, m].any()}
 
     # ---- the team's calls ------------------------------------------------------------------------
     @property
@@ -129,14 +131,15 @@ class RecordedTeam:
                         if status == DELIVERED:
                             self._deliver_params(i, j, rt, t, ids, counts[f"agent_{j}"])
                 if plan.share_rays[i, j] and self.agents[i].ray_bytes[rt] > 0:
-                    size = int(self.agents[i].ray_bytes[rt])
+                    ray_seed = zlib.crc32(f"rays-{self.seed}-{t}-{i}-{j}".encode())  # Team.round's
+                    size = int(self.agents[i].ray_bytes[rt]) + len(str(ray_seed)) - 1  # recorded with seed 0
                     if size <= room[i, j]:
                         status = self._transmit(i, j, size)
                         room[i, j] -= size if status != OVER_BUDGET else 0
                         deliveries.append(DeliveryRecord(i, j, "rays", status, size if status != OVER_BUDGET else 0))
                         if status == DELIVERED:
                             self.delivered_round[i]["rays"][j] = t
-                            self.peer_positions[j][i] = (t, self.agents[i].ray_positions[rt].astype(np.float64))
+                            self.peer_positions[j][i] = (t, self._ray_position(i, rt, ray_seed))
         self.round_index += 1
         self.last_links_up = limits.up.copy()
         self._new_frames = [self._frames(a, rt) if t < a.rounds else () for a in self.agents]
@@ -206,7 +209,7 @@ class RecordedTeam:
         a, ex, index = self.agents[i], self.config.exchange, self.index[i]
         copies, clouds = self.held[j][i], self.cloud_sent[i][j]
         chosen = None if only is None else {int(v) for v in only}
-        shareable = [int(iid) for m, iid in enumerate(a.ids) if a.live[rt, m]]
+        shareable = [int(iid) for m, iid in enumerate(a.ids) if a.shareable[rt, m]]
         ids = [iid for iid in shareable if chosen is None or iid in chosen or (new and self.born[i][iid] == rt + 1)]
         if chosen is not None and not ids:
             return None
@@ -239,11 +242,11 @@ class RecordedTeam:
         for iid in ids:
             if iid not in self.decision[j][i]:
                 k = column.get(iid)
-                decided = int(table[1 + rt, k]) if k is not None else ADOPT
-                self.decision[j][i][iid] = ADOPT if decided < 0 else decided
-                if decided < 0:
+                decided = int(table[1 + rt, k]) if k is not None else UNALIGNED
+                self.decision[j][i][iid] = decided
+                if decided == ADOPT:
                     counts.adopted += 1
-                else:
+                elif decided >= 0:
                     counts.matched += 1
             self.held[j][i][iid] = rt
             self.cloud_sent[i][j][iid] = int(a.cloud_points[rt, self.index[i][iid]]) if \
@@ -251,6 +254,19 @@ class RecordedTeam:
                 self.config.exchange.resend_cloud_growth * self.cloud_sent[i][j][iid] else self.cloud_sent[i][j][iid]
         self.delivered_round[i]["params"][j] = t
         self.params_round[j][i] = t
+
+    def _ray_position(self, i: int, rt: int, seed: int) -> np.ndarray:
+        """Where agent i's ray message of round ``rt`` says it was: the last of the poses ``Outbox.ray_message``
+        draws with ``seed`` from the frames it had read."""
+        a, c = self.agents[i], self.config.consistency
+        stop = int(a.frames_read[rt])
+        first = max(0, stop - self.config.frames_per_round)
+        if c.ray_poses == "mapped" and first > 0:
+            picks = np.unique(np.random.default_rng([seed, 7]).choice(first, size=min(c.poses_per_message, first),
+                                                                       replace=False))
+        else:
+            picks = np.unique(np.linspace(first, stop - 1, c.poses_per_message).round().astype(int))
+        return a.frame_poses[int(picks[-1]), :3, 3].astype(np.float64)
 
     # ---- what each agent holds and knows ---------------------------------------------------------------
     def _change(self, i: int, m: int, copy_round: int, rt: int) -> float:
@@ -297,16 +313,19 @@ class RecordedTeam:
     def _snapshot(self, i: int, rt: int) -> AgentSnapshot:
         a, n, ex = self.agents[i], self.num_agents, self.config.exchange
         budget_left = float("inf") if self.budget is None else max(0.0, self.budget - float(self.bytes_sent[i]))
-        if rt < 0:
-            return AgentSnapshot(i, 0, 0, (), None, 0, 0, {}, budget_left, 0, frames_total=a.frames_total)
+        if rt < 0:  # before the first round: nothing held, nothing sent (``TeamMember.snapshot`` on an empty map)
+            return AgentSnapshot(i, 0, 0, (), None, 0, 0, {}, budget_left, 0, frames_total=a.frames_total,
+                                 links={j: LinkState(0.0, 0.0, 0.0, None, None, 0) for j in range(n) if j != i},
+                                 instance_links={j: () for j in range(n) if j != i})
         r = min(rt, a.rounds - 1)
-        live = [int(iid) for m, iid in enumerate(a.ids) if a.live[r, m]]
+        alive = int(a.live[r].sum())
+        live = [int(iid) for m, iid in enumerate(a.ids) if a.shareable[r, m]]  # what its messages and links carry
         peers = {}
         for j, table in self.held[i].items():
             b = self.agents[j]
             boxes = tuple((b.lo[c, self.index[j][iid]], b.hi[c, self.index[j][iid]]) for iid, c in table.items()
                           if b.is_object[self.index[j][iid]])
-            if table or j in self.peer_positions[i]:
+            if j in self.params_round[i] or j in self.peer_positions[i]:  # an empty message counts too
                 peers[j] = PeerKnowledge(len(table), boxes, self.params_round[i].get(j), self.peer_positions[i].get(j))
         links, per_instance = {}, {}
         tolerance = ex.up_to_date_tolerance
@@ -319,7 +338,7 @@ class RecordedTeam:
                                  change=float(np.mean(changes)) if changes else 0.0,
                                  params_round=self.delivered_round[i]["params"].get(j),
                                  rays_round=self.delivered_round[i]["rays"].get(j), bytes_sent=int(self.link_bytes[i, j]))
-            shared = {own for own in self.decision[i][j].values() if own != ADOPT}
+            shared = {own for own in self.decision[i][j].values() if own >= 0}
             items = []
             for iid, change in zip(live, changes):
                 m = self.index[i][iid]
@@ -332,7 +351,7 @@ class RecordedTeam:
         position = a.positions[r]
         return AgentSnapshot(
             i, self.round_index, int(a.frames_read[r]), self._new_frames[i],
-            None if not np.all(np.isfinite(position)) else position.astype(np.float64), len(live) + adopted, len(live),
+            None if not np.all(np.isfinite(position)) else position.astype(np.float64), alive + adopted, len(live),
             peers, budget_left, int(self.link_bytes[i].sum()), links=links, frames_total=a.frames_total,
             instance_links=per_instance,
             map_bytes=sum(vector_wire_bytes(ex, int(a.nparams[r, self.index[i][iid]]), False) for iid in live))

@@ -15,7 +15,6 @@ Stored as one ``.npz`` read with ``allow_pickle=False``; ``meta`` (JSON) names t
 from __future__ import annotations
 
 import json
-import zipfile
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -30,6 +29,8 @@ from mapping.team.plan import RoundPlan
 RECORDING_FORMAT = 1
 ADOPT = -1
 """``AgentRecording.matches`` entry: the receiver would adopt the sender's instance whole."""
+UNALIGNED = -2
+"""``AgentRecording.matches`` entry: the sender's instance had no cloud then; the receiver holds it, unaligned."""
 
 
 class RecordingError(ValueError):
@@ -57,6 +58,9 @@ class AgentRecording:
     observed_offsets: np.ndarray
     live: np.ndarray
     """(T, M) in its map after the round."""
+    shareable: np.ndarray
+    """(T, M) with pixels of its own keyframes after the round: what a parameter message carries (a live instance
+    whose keyframes were all evicted still counts in its map, and is not sent)."""
     lo: np.ndarray
     """(T, M, 3) box."""
     hi: np.ndarray
@@ -74,15 +78,13 @@ class AgentRecording:
     """(T,) bytes of a parameter message with no instance."""
     ray_bytes: np.ndarray
     """(T,) bytes of its ray message (0: it had read nothing)."""
-    ray_positions: np.ndarray
-    """(T, 3) where its ray message says it was (its last pose; NaN: no message)."""
     change: np.ndarray
     """(M, T, T) relative L2 change of the network from round c (row) to round t (column); NaN where not live."""
     coverage: np.ndarray
     """(T, M, ceil(P / 8)) packed bits: the probes the instance alone reproduces after the round."""
     probes: int
     top: np.ndarray
-    """(T, H, W) float16 its whole map's ``ColumnMap.top`` after the round; ``decided`` the same."""
+    """(T, H, W) its whole map's ``ColumnMap.top`` after the round; ``decided`` the same."""
     decided: np.ndarray
     column_index: np.ndarray
     """Concatenated per-instance columns (``InstanceColumns``), (T * M + 1,) offsets in ``column_offsets``."""
@@ -91,7 +93,8 @@ class AgentRecording:
     column_offsets: np.ndarray
     matches: dict[int, np.ndarray] = field(default_factory=dict)
     """Sender j -> (T + 1, K): row 0 the ids of j's instances, row t + 1 the own id this agent would match each to
-    if it first arrived in round t (``ADOPT``: adopt it whole; -2: the sender did not have it then)."""
+    if it first arrived in round t (``ADOPT``: adopt it whole, also when the match is an instance its mapper does
+    not hold yet, whose network it then takes from the copy; ``UNALIGNED``: not aligned on arrival, no cloud)."""
 
     @property
     def rounds(self) -> int:
@@ -136,11 +139,12 @@ class Recording:
     def save(self, path) -> None:
         """Written whole: a temporary file renamed into place."""
         import os  # noqa: PLC0415
+        import threading  # noqa: PLC0415
         from pathlib import Path  # noqa: PLC0415
 
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp.npz")
+        tmp = path.with_name(f".{path.stem}.{os.getpid()}.{threading.get_ident()}.tmp.npz")
         arrays = {"meta": np.asarray(json.dumps(self.meta, sort_keys=True, default=str))}
         for i, agent in enumerate(self.agents):
             arrays.update(agent.arrays(f"a{i}_"))
@@ -154,19 +158,25 @@ class Recording:
         try:
             with np.load(path, allow_pickle=False) as data:
                 meta = json.loads(str(data["meta"]))
+                if not isinstance(meta, dict):
+                    raise ValueError(f"meta is a {type(meta).__name__}, not a mapping")
                 if meta.get("format") != RECORDING_FORMAT:
                     raise RecordingError(f"{path}: recording format {meta.get('format')!r}, expected {RECORDING_FORMAT}")
+                if expected is not None:  # before the arrays: a file of other code is named as such
+                    expected = json.loads(json.dumps(expected, sort_keys=True, default=str))  # tuples as lists
+                    differ = sorted(k for k in expected if meta.get(k) != expected[k])
+                    if differ:
+                        said = "; ".join(f"{k}: {_short(meta.get(k))} recorded, {_short(expected.get(k))} asked"
+                                         for k in differ)
+                        raise RecordingError(f"{path}: made with other settings ({said})")
                 agents = [AgentRecording.from_arrays(data, f"a{i}_") for i in range(int(meta["agents"]))]
         except RecordingError:
             raise
-        except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as exc:
+        except Exception as exc:  # noqa: BLE001  (a torn or foreign file: zip, zlib, npy, JSON, key or type errors)
             raise RecordingError(f"{path}: not a whole recording ({type(exc).__name__}: {exc})") from None
-        if expected is not None:
-            expected = json.loads(json.dumps(expected, sort_keys=True, default=str))  # as stored: tuples are lists
-            differ = sorted(k for k in expected if meta.get(k) != expected[k])
-            if differ:
-                said = "; ".join(f"{k}: {_short(meta.get(k))} recorded, {_short(expected.get(k))} asked" for k in differ)
-                raise RecordingError(f"{path}: made with other settings ({said})")
+        rounds = {a.rounds for a in agents}
+        if len(rounds) != 1 or 0 in rounds:
+            raise RecordingError(f"{path}: not a whole recording (agents recorded {sorted(rounds)} rounds)")
         return Recording(meta, agents)
 
 
@@ -191,6 +201,8 @@ class EpisodeRecorder:
         rows: list[list[dict]] = [[] for _ in range(n)]
         params: list[dict[int, list]] = [{} for _ in range(n)]
         matches: list[dict[int, list[dict[int, int]]]] = [{j: [] for j in range(n) if j != i} for i in range(n)]
+        if team.done:
+            raise RecordingError("the team has no frame to read: nothing to record")
         while not team.done:
             report = team.round(RoundPlan.never(n))
             t = report.round
@@ -198,9 +210,11 @@ class EpisodeRecorder:
             views = [self._views(m) for m in members]
             for i, member in enumerate(members):
                 rows[i].append(self._capture(member, report.agents[i], t, params[i]))
+                slots = member.mapper.slots
                 for j in matches[i]:
                     decided = align_arrivals(views[i][0], views[j][1], team.config.arrival)
-                    matches[i][j].append({d.peer_id: (ADOPT if d.kind == "adopt" else int(d.own_id)) for d in decided})
+                    matches[i][j].append({d.peer_id: (ADOPT if d.kind == "adopt" or d.own_id not in slots
+                                                      else int(d.own_id)) for d in decided})
             if progress is not None:
                 progress(t)
         return Recording({**meta, "format": RECORDING_FORMAT, "agents": n},
@@ -218,7 +232,7 @@ class EpisodeRecorder:
         return own, sent
 
     def _capture(self, member, snapshot, t: int, params: dict[int, list]) -> dict:
-        ids = member.shareable_ids()
+        ids, shareable = member.mapper.live_ids(), set(member.shareable_ids())
         peer = (member.index + 1) % self.team.num_agents
         message = member.parameter_message(peer, t, self.team.num_agents - 1)
         member.acknowledge(peer, "params", False, t)  # nothing was sent: nothing booked
@@ -231,7 +245,7 @@ class EpisodeRecorder:
             size = int(np.asarray(member.mapper.export_instance(payload.instance_id).params).size)
             saved = member.vector_wire_bytes(size, False) - member.vector_wire_bytes(size, True)
             first[payload.instance_id], repeat[payload.instance_id] = alone, max(bare - saved, 0)
-        rays = member.ray_message(peer, t, 0)
+        rays = member.ray_message(peer, t, 0)  # its size with a one-digit seed (the replay adds the real seed's digits)
         exported = {iid: member.mapper.export_instance(iid) for iid in ids}
         for iid, inst in exported.items():
             params.setdefault(iid, []).append((t, np.asarray(inst.params, np.float32)))
@@ -239,9 +253,8 @@ class EpisodeRecorder:
         hit = self.cell_centres(np.concatenate(observed) if observed else np.zeros((0, 3)))
         whole = column_map(member.mapper, self.grid)
         fused = member.fusion.instances
-        return {"ids": ids, "exported": exported, "first": first, "repeat": repeat, "header": header,
-                "rays": 0 if rays is None else len(to_bytes(rays)),
-                "ray_position": np.full(3, np.nan) if rays is None else np.asarray(rays.poses[-1][:3, 3], float), "frames_read": snapshot.frames_read,
+        return {"ids": ids, "shareable": shareable, "exported": exported, "first": first, "repeat": repeat, "header": header,
+                "rays": 0 if rays is None else len(to_bytes(rays)), "frames_read": snapshot.frames_read,
                 "position": snapshot.position, "poses": [f.pose for f in snapshot.new_frames], "observed": hit,
                 "confidence": {iid: member.confidence_of(iid) for iid in ids},
                 "points": {iid: len(fused[iid].points) if iid in fused else 0 for iid in ids},
@@ -254,7 +267,7 @@ class EpisodeRecorder:
         ids = sorted({iid for row in rows for iid in row["ids"]})
         index = {iid: m for m, iid in enumerate(ids)}
         T, M, P = len(rows), len(ids), len(self.points)
-        live = np.zeros((T, M), bool)
+        live, shareable = np.zeros((T, M), bool), np.zeros((T, M), bool)
         lo, hi = np.zeros((T, M, 3), np.float32), np.zeros((T, M, 3), np.float32)
         conf, nparams, points = np.zeros((T, M), np.float32), np.zeros((T, M), np.int32), np.zeros((T, M), np.int32)
         first, repeat = np.zeros((T, M), np.int32), np.zeros((T, M), np.int32)
@@ -264,7 +277,7 @@ class EpisodeRecorder:
         for t, row in enumerate(rows):
             for iid in row["ids"]:
                 m, inst = index[iid], row["exported"][iid]
-                live[t, m] = True
+                live[t, m], shareable[t, m] = True, iid in row["shareable"]
                 lo[t, m], hi[t, m] = inst.bound_lo, inst.bound_hi
                 conf[t, m], nparams[t, m], points[t, m] = row["confidence"][iid], np.asarray(inst.params).size, row["points"][iid]
                 first[t, m], repeat[t, m] = row["first"].get(iid, 0), row["repeat"].get(iid, 0)
@@ -275,19 +288,19 @@ class EpisodeRecorder:
                 cols = row["columns"].get(iid) if live[t, index[iid]] else None
                 if cols is not None:
                     col_index.append(cols.columns)
-                    col_top.append(cols.top.astype(np.float16))
-                    col_decided.append(cols.decided.astype(np.float16))
+                    col_top.append(cols.top.astype(np.float32))
+                    col_decided.append(cols.decided.astype(np.float32))
                     offsets.append(offsets[-1] + len(cols.columns))
                 else:
                     offsets.append(offsets[-1])
-        change = np.full((M, T, T), np.nan, np.float16)
+        change = np.full((M, T, T), np.nan, np.float32)
         for iid, series in params.items():
             m = index[iid]
             for c, pc in series:
                 norm = max(float(np.linalg.norm(pc)), 1e-12)
                 for t, pt in series:
                     if pt.shape == pc.shape:
-                        change[m, c, t] = min(float(np.linalg.norm(pt - pc)) / norm, 65000.0)
+                        change[m, c, t] = float(np.linalg.norm(pt - pc)) / norm
         frame_offsets = np.cumsum([0] + [len(r["poses"]) for r in rows])
         observed_offsets = np.cumsum([0] + [len(r["observed"]) for r in rows])
         match_arrays = {}
@@ -304,19 +317,19 @@ class EpisodeRecorder:
             ids=np.asarray(ids, np.int64), is_object=is_object, frames_total=len(member.stream),
             frames_read=np.asarray([r["frames_read"] for r in rows], np.int32),
             positions=np.stack([nan3 if r["position"] is None else np.asarray(r["position"], float) for r in rows]),
-            frame_poses=np.asarray([p for r in rows for p in r["poses"]], np.float32).reshape(-1, 4, 4),
+            frame_poses=np.asarray([p for r in rows for p in r["poses"]], np.float64).reshape(-1, 4, 4),
             frame_offsets=frame_offsets.astype(np.int64),
             observed_points=np.concatenate([r["observed"] for r in rows]).astype(np.float32).reshape(-1, 3),
-            observed_offsets=observed_offsets.astype(np.int64), live=live, lo=lo, hi=hi, confidence=conf,
+            observed_offsets=observed_offsets.astype(np.int64), live=live, shareable=shareable, lo=lo, hi=hi, confidence=conf,
             nparams=nparams, cloud_points=points, payload_first=first, payload_repeat=repeat,
             header_bytes=np.asarray([r["header"] for r in rows], np.int32),
             ray_bytes=np.asarray([r["rays"] for r in rows], np.int32),
-            ray_positions=np.stack([r["ray_position"] for r in rows]), change=change, coverage=coverage, probes=P,
-            top=np.stack([r["top"] for r in rows]).astype(np.float16),
-            decided=np.stack([r["decided"] for r in rows]).astype(np.float16),
+            change=change, coverage=coverage, probes=P,
+            top=np.stack([r["top"] for r in rows]).astype(np.float32),
+            decided=np.stack([r["decided"] for r in rows]).astype(np.float32),
             column_index=np.concatenate(col_index).astype(np.int32) if col_index else np.zeros(0, np.int32),
-            column_top=np.concatenate(col_top) if col_top else np.zeros(0, np.float16),
-            column_decided=np.concatenate(col_decided) if col_decided else np.zeros(0, np.float16),
+            column_top=np.concatenate(col_top) if col_top else np.zeros(0, np.float32),
+            column_decided=np.concatenate(col_decided) if col_decided else np.zeros(0, np.float32),
             column_offsets=np.asarray(offsets, np.int64), matches=match_arrays)
 
 

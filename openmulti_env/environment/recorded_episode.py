@@ -47,7 +47,16 @@ def recording_meta(tree, world_seed: int, episode_seed: int) -> dict:
             "agents": tree.num_agents, "world": asdict(tree.world), "perception": asdict(tree.perception),
             "team": asdict(tree.team), "probe_points": tree.env.probe_points, "map_size": tree.env.map_size,
             "learner": tree.run.learner, "device": str(tree.run.device), "version": package_version(),
-            "code": code_digest()}
+            "code": recording_code()}
+
+
+def recording_code() -> str:
+    """A digest of the code a recording depends on: what plays an episode (``rewards.code_digest``), and what turns
+    frames into the observation's cells and the recorded captures (``observation.py``, this module)."""
+    digest = hashlib.sha256(code_digest().encode())
+    for path in (Path(__file__).with_name("observation.py"), Path(__file__)):
+        digest.update(path.read_bytes())
+    return digest.hexdigest()[:16]
 
 
 def recording_path(tree, meta: dict) -> Path:
@@ -91,7 +100,7 @@ class RecordedEpisodes:
         if path.exists():
             try:
                 found = Recording.load(path, expected=meta)
-            except RecordingError as exc:
+            except RecordingError as exc:  # every unreadable or foreign file is one (Recording.load)
                 warnings.warn(f"{exc}; recording it again", RecordingWarning, stacklevel=3)
         if found is None:
             found = self.make(meta)

@@ -97,13 +97,15 @@ def code_digest() -> str:
 
 def baseline_key(tree, world_seed: int, episode_seed: int) -> str:
     """A digest of what decides the two episodes: the scene, both seeds, the world, perception, team and channel
-    settings, the horizon, the probes, the learner and device, and the code (the env's reward and observation
-    settings do not enter)."""
+    settings, the horizon, the probes, the learner and device, the code, and for a recorded env its recordings (the
+    env's reward and observation settings do not enter)."""
     parts = {"scene": tree.scene, "world_seed": int(world_seed), "episode_seed": int(episode_seed),
              "world": asdict(tree.world), "perception": asdict(tree.perception), "team": asdict(tree.team),
              "channel": asdict(tree.channel), "probe_points": tree.env.probe_points, "horizon": tree.env.horizon,
              "learner": tree.run.learner, "device": str(tree.run.device), "format": BASELINE_FORMAT,
              "code": code_digest()}
+    if tree.env.episode != "real":  # a recorded env's baselines are its model's episodes, never the real ones
+        parts.update(episode=tree.env.episode, recordings=tree.env.recordings)
     return hashlib.sha256(json.dumps(parts, sort_keys=True, default=str).encode()).hexdigest()[:32]
 
 
