@@ -28,8 +28,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from studies.settings import parse_setting  # noqa: E402
+from studies.settings import parse_setting
 
 ROOT = Path(__file__).resolve().parents[1]
 TRAIN_SCENES = tuple(f"random:{k}" for k in range(100, 116))

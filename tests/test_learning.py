@@ -263,7 +263,7 @@ def test_a_world_cycle_replays_its_worlds_from_a_fixed_set_of_episode_seeds(monk
 
     class Fake:
         def __init__(self, scene, **_):
-            self.config = SimpleNamespace(scene=scene)
+            self.config = SimpleNamespace(scene=scene, env=SimpleNamespace(episode="real"))
             self.possible_agents = ["agent_0", "agent_1"]
             self.agents = ["agent_0"]
 

@@ -77,9 +77,8 @@ episode's real end, so a trainer bootstraps no value past it; truncation after `
 `completion_gain` (percent points), `bytes_sent`, `bytes_received` (this step), `bytes_sent_total`,
 `budget_left_mb` (inf without a budget), `messages_delivered`, `messages_dropped`,
 `messages_refused` (its own messages this step), `instances`, `instances_received`, `step`.
-`episode="recorded"` replays one of `recordings` real `never` episodes per world (made by the real mapper on
-first use, cached beside the world cache) and models what the actions change (copies held, links, bytes, draws;
-`mapping.team.recorded`, docs/recorded.md): the same spaces, rewards and infos at about a hundredth of a step's cost.
+`episode="recorded"`: each episode replays a real `never` episode recorded once per world and models what the
+actions change (`mapping.team.recorded`, docs/recorded.md): the same spaces, rewards and infos, 100x cheaper.
 
 ### Seeds
 The constructor's `seed` fixes the world (room layout and paths; default 0), so an env's episodes share a
