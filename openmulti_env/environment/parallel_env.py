@@ -234,8 +234,8 @@ class OpenMultiParallelEnv(ParallelEnv, EzPickle):
         """The episode's team: the real mapper, or with ``episode="recorded"`` a ``RecordedTeam``."""
         if self._recorded is not None:
             team = self._recorded.team(episode_seed)
-            if self._recorded.complete:  # every recording made: the rendered frames are not read again
-                self._frames.clear()
+            if self._recorded.complete:  # every recording made: frames, GL and the culled surface are not used again
+                self._recorded.release(self.world, self._frames)
             return team
         return self._real_team(episode_seed)
 
