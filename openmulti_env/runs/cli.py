@@ -317,8 +317,9 @@ and the shipped policy's run (about an hour; policies/trained/README.md records 
 --workers is at most one per core; --worlds-per-worker K steps K worlds in each worker in turn (more worlds per
 update, not more steps per hour: peak 1.13 GB for one rl_small world in a process, 0.87 GB each for two, 0.63 GB
 each for four; docs/profile.md), e.g. --workers 2 --worlds-per-worker 2 on 8 GB. --preset rl_lite is 12 steps on
-shorter tours, 1.5x faster (about 3,000 env steps an hour here against 2,000 at rl_small); whether it ranks schedules as `fast` does
-is docs/transfer.md (so far on one complete cell: 0.80, rl_small 0.67).
+shorter tours, 1.5x faster (about 3,000-4,800 env steps an hour here against 2,000 at rl_small); --episode recorded
+replays a real episode recorded once per world and models what the actions change (about 180,000 env steps an hour
+at rl_lite; a model: docs/recorded.md); how each ranks schedules against `fast`: docs/transfer.md.
 Learning a schedule (docs/learning.md): the team decides once a round from every agent's observation, a
 central critic reads state(), the reward is normalised per episode against never/always (cached), TensorBoard
 logs under OUT/tensorboard,
