@@ -120,12 +120,17 @@ class RecordedEpisodes:
 
     def make(self, meta: dict) -> Recording:
         """One real ``never`` episode on the recording's seed, captured round by round."""
+        from tqdm import tqdm  # noqa: PLC0415
+
         start = time.perf_counter()
+        print(f"[openmulti] recording an episode of {meta['scene']!r} (world seed {meta['world_seed']}, episode seed "
+              f"{meta['episode_seed']}) with the real mapper, once; it is cached in {recording_path(self.tree, meta).parent}")
         team = self.real_team(meta["episode_seed"])
         try:
             recorder = EpisodeRecorder(team, self.points, self.normals, self.observer.column_grid,
                                        self.cell_centres, DEPTH_STRIDE)
-            recording = recorder.record(meta)
+            with tqdm(total=team.rounds_total(), desc="recording", unit="round", leave=False) as bar:
+                recording = recorder.record(meta, progress=lambda _: bar.update())
         finally:
             team.release()
         self.made += 1
