@@ -63,13 +63,10 @@ def column_map(mapper, grid: ColumnGrid, level: float = 0.5) -> ColumnMap:
         slots = [s for s in mapper.slots.values() if s.bank == name and s.alive]
         points, rows, flat = [], [], []
         for slot in slots:
-            lo, hi = bank.bound_min[slot.row].cpu().numpy(), bank.bound_max[slot.row].cpu().numpy()
-            (c0, c1), (r0, r1), (l0, l1) = (grid.index_range(xs, lo[0], hi[0]), grid.index_range(ys, lo[1], hi[1]),
-                                            grid.index_range(zs, lo[2], hi[2]))
-            if c1 <= c0 or r1 <= r0 or l1 <= l0:
+            voxels = _box_voxels(grid, bank, slot.row)
+            if voxels is None:
                 continue
-            r, c, k = np.meshgrid(np.arange(r0, r1), np.arange(c0, c1), np.arange(l0, l1), indexing="ij")
-            r, c, k = r.ravel(), c.ravel(), k.ravel()
+            r, c, k = (a.ravel() for a in voxels)
             points.append(np.stack([xs[c], ys[r], zs[k]], axis=1))
             rows.append(np.full(len(r), slot.row))
             flat.append(np.ravel_multi_index((r, c, k), shape))
@@ -108,12 +105,10 @@ def instance_columns(mapper, grid: ColumnGrid, level: float = 0.5) -> dict[int, 
     out = {}
     for name, bank in mapper.banks.items():
         for iid, slot in sorted((i, s) for i, s in mapper.slots.items() if s.bank == name and s.alive):
-            lo, hi = bank.bound_min[slot.row].cpu().numpy(), bank.bound_max[slot.row].cpu().numpy()
-            (c0, c1), (r0, r1), (l0, l1) = (grid.index_range(xs, lo[0], hi[0]), grid.index_range(ys, lo[1], hi[1]),
-                                            grid.index_range(zs, lo[2], hi[2]))
-            if c1 <= c0 or r1 <= r0 or l1 <= l0:
+            voxels = _box_voxels(grid, bank, slot.row)
+            if voxels is None:
                 continue
-            r, c, k = np.meshgrid(np.arange(r0, r1), np.arange(c0, c1), np.arange(l0, l1), indexing="ij")
+            r, c, k = voxels
             queried = torch.as_tensor(np.stack([xs[c.ravel()], ys[r.ravel()], zs[k.ravel()]], axis=1),
                                       dtype=torch.float32, device=mapper.device)
             rows = torch.full((len(queried),), slot.row, dtype=torch.long, device=mapper.device)
@@ -121,9 +116,21 @@ def instance_columns(mapper, grid: ColumnGrid, level: float = 0.5) -> dict[int, 
             occ = field.query(queried, rows, with_colour=False).occupancy
             sure = (((occ - 0.5).abs() >= DECIDED_MARGIN) & field.looked(queried, rows)).cpu().numpy()
             occupied = (occ > level).cpu().numpy().reshape(r.shape)
-            levels = zs[np.arange(l0, l1)]
+            levels = zs[k[0, 0]]
             top = np.where(occupied.any(axis=2), levels[len(levels) - 1 - np.argmax(occupied[:, :, ::-1], axis=2)], np.nan)
             out[iid] = InstanceColumns((r[:, :, 0] * len(xs) + c[:, :, 0]).ravel().astype(np.int32),
                                        top.ravel().astype(np.float32),
                                        (sure.reshape(r.shape).sum(axis=2) / len(zs)).ravel().astype(np.float32))
     return out
+
+
+def _box_voxels(grid: ColumnGrid, bank, row: int) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """(rows, cols, levels) index arrays, each (R, C, L), of the grid voxels inside instance ``row``'s box (None:
+    none)."""
+    xs, ys, zs = (np.asarray(a, np.float64) for a in (grid.xs, grid.ys, grid.zs))
+    lo, hi = bank.bound_min[row].cpu().numpy(), bank.bound_max[row].cpu().numpy()
+    (c0, c1), (r0, r1), (l0, l1) = (grid.index_range(xs, lo[0], hi[0]), grid.index_range(ys, lo[1], hi[1]),
+                                    grid.index_range(zs, lo[2], hi[2]))
+    if c1 <= c0 or r1 <= r0 or l1 <= l0:
+        return None
+    return tuple(np.meshgrid(np.arange(r0, r1), np.arange(c0, c1), np.arange(l0, l1), indexing="ij"))
